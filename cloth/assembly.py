@@ -1,0 +1,137 @@
+"""Sparse assembly of per-element forces and 3x3 stiffness blocks.
+
+The global matrices are block-CSR (BSR) with 3x3 blocks, one block row per node. The sparsity
+pattern is the node graph of the elements (faces and bending hinges); it is built once per
+topology by :class:`SparsityPattern` and reused every step until the remesher changes the
+mesh. Each element carries a precomputed map from its local node pairs to block slots, so the
+scatter is a plain loop with no searching.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from numba import njit
+
+
+class SparsityPattern:
+    """Block-CSR pattern of the node graph of a set of elements.
+
+    Parameters
+    ----------
+    n_nodes : int
+    families : dict of name -> (n_elem, k) int array
+        Node stencils of each element family ("faces": k = 3, "hinges": k = 4).
+
+    Attributes
+    ----------
+    indptr : (n_nodes + 1,) int64, block-row pointers
+    indices : (n_blocks,) int64, block-column of each block, sorted within a row
+    diag : (n_nodes,) int64, slot of the diagonal block of each row
+    slots : dict of name -> (n_elem, k, k) int64, slot of block (node a, node b) per element
+    """
+
+    def __init__(self, n_nodes: int, families: dict[str, np.ndarray]):
+        self.n_nodes = n_nodes
+        rows, cols = [np.arange(n_nodes, dtype=np.int64)], [np.arange(n_nodes, dtype=np.int64)]
+        for en in families.values():
+            k = en.shape[1]
+            rows.append(np.repeat(en, k, axis=1).reshape(-1).astype(np.int64))
+            cols.append(np.tile(en, (1, k)).reshape(-1).astype(np.int64))
+        r, c = np.concatenate(rows), np.concatenate(cols)
+        keys = np.unique(r * n_nodes + c)
+        self.indices = keys % n_nodes
+        self.indptr = np.zeros(n_nodes + 1, dtype=np.int64)
+        np.cumsum(np.bincount(keys // n_nodes, minlength=n_nodes), out=self.indptr[1:])
+        self.n_blocks = keys.size
+        self.diag = np.searchsorted(keys, np.arange(n_nodes, dtype=np.int64) * (n_nodes + 1))
+        self.slots = {}
+        for name, en in families.items():
+            k = en.shape[1]
+            pair = (np.repeat(en, k, axis=1).astype(np.int64) * n_nodes + np.tile(en, (1, k))).reshape(-1, k, k)
+            self.slots[name] = np.searchsorted(keys, pair)
+
+    def zeros(self) -> np.ndarray:
+        """A zero block array (n_blocks, 3, 3) for this pattern."""
+        return np.zeros((self.n_blocks, 3, 3))
+
+    def to_scipy(self, data: np.ndarray) -> sp.csr_matrix:
+        """Scalar CSR matrix (3n x 3n) of a block array, for direct solvers and inspection."""
+        bsr = sp.bsr_matrix((data, self.indices, self.indptr), shape=(3 * self.n_nodes, 3 * self.n_nodes))
+        return bsr.tocsr()
+
+
+@njit(cache=True)
+def scatter_forces(force, element_nodes, element_grad, sign):
+    """force[node] += sign * element_grad for every element (accumulates into `force`).
+
+    element_grad is (n_elem, 3k) with the k nodes' 3-vectors stacked; sign = -1 turns energy
+    gradients into forces.
+    """
+    n_elem, k = element_nodes.shape
+    for e in range(n_elem):
+        for a in range(k):
+            na = element_nodes[e, a]
+            for d in range(3):
+                force[na, d] += sign * element_grad[e, 3 * a + d]
+
+
+@njit(cache=True)
+def scatter_blocks(data, element_slots, element_hess, scale):
+    """data[slot] += scale * 3x3 block (a, b) of each element Hessian (accumulates into `data`)."""
+    n_elem, k, _ = element_slots.shape
+    for e in range(n_elem):
+        for a in range(k):
+            for b in range(k):
+                s = element_slots[e, a, b]
+                for i in range(3):
+                    for j in range(3):
+                        data[s, i, j] += scale * element_hess[e, 3 * a + i, 3 * b + j]
+
+
+@njit(cache=True)
+def bsr_matvec(indptr, indices, data, x, out):
+    """out = A @ x for a block-CSR matrix with 3x3 blocks; x, out are (n, 3)."""
+    n = indptr.shape[0] - 1
+    for i in range(n):
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        for k in range(indptr[i], indptr[i + 1]):
+            j = indices[k]
+            x0, x1, x2 = x[j, 0], x[j, 1], x[j, 2]
+            s0 += data[k, 0, 0] * x0 + data[k, 0, 1] * x1 + data[k, 0, 2] * x2
+            s1 += data[k, 1, 0] * x0 + data[k, 1, 1] * x1 + data[k, 1, 2] * x2
+            s2 += data[k, 2, 0] * x0 + data[k, 2, 1] * x1 + data[k, 2, 2] * x2
+        out[i, 0] = s0
+        out[i, 1] = s1
+        out[i, 2] = s2
+
+
+@njit(cache=True)
+def apply_dirichlet(indptr, indices, data, rhs, fixed, value):
+    """Impose x[i] = value[i] for nodes with fixed[i], keeping the matrix symmetric.
+
+    Free rows move the known columns to the right-hand side (rhs[i] -= A_ij value[j]) and zero
+    them; fixed rows become identity rows with rhs = value. Modifies `data` and `rhs` in place.
+    """
+    n = indptr.shape[0] - 1
+    for i in range(n):
+        if fixed[i]:
+            for k in range(indptr[i], indptr[i + 1]):
+                j = indices[k]
+                for a in range(3):
+                    for b in range(3):
+                        data[k, a, b] = 1.0 if (j == i and a == b) else 0.0
+            for a in range(3):
+                rhs[i, a] = value[i, a]
+        else:
+            for k in range(indptr[i], indptr[i + 1]):
+                j = indices[k]
+                if fixed[j]:
+                    for a in range(3):
+                        acc = 0.0
+                        for b in range(3):
+                            acc += data[k, a, b] * value[j, b]
+                            data[k, a, b] = 0.0
+                        rhs[i, a] -= acc

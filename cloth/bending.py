@@ -1,0 +1,194 @@
+"""Discrete-shell bending on the dihedral angle of each interior edge (Grinspun et al. 2003).
+
+A hinge is the stencil (x0, x1, x2, x3): the edge x0 -> x1, face A = (x0, x1, x2) and face
+B = (x1, x0, x3), both counter-clockwise. With a = x1 - x0, b = x2 - x0, c = x3 - x0 the
+(unnormalised) normals are n_A = a x b and n_B = c x a, and
+
+    |n_A||n_B| sin(theta) = (n_A x n_B) . a/|a| = -|a| det(a, b, c)   =: y
+    |n_A||n_B| cos(theta) =  n_A . n_B = (a.c)(a.b) - |a|^2 (b.c)     =: z
+    theta = atan2(y, z).
+
+Sign: theta > 0 when x3 lies behind face A (on the side opposite to n_A), i.e. the hinge
+folds away from face A's normal; theta = 0 when flat. y and z are polynomials in (a, b, c), so
+the exact gradient and Hessian of theta follow from those of y and z by the chain rule for
+atan2, with no approximation. The energy of a hinge is
+
+    W = 1/2 w (theta - theta_rest)^2,    w = k_bend * 3 |e|^2 / (A_A + A_B),
+
+with rest edge length |e| and rest face areas A_A, A_B (material space), k_bend in N m.
+Its Hessian is w (grad theta grad theta^T + (theta - theta_rest) Hess theta); the second term
+is indefinite, so where the element Hessian is indefinite (a Cholesky test fails) it is
+projected to positive semi-definite in the (a, b, c) coordinates, whose map to positions is a
+fixed congruence, so the projected 12x12 matrix is PSD and equals the exact one wherever that
+is PSD already.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from .membrane import project_psd
+
+# A hinge whose y^2 + z^2 = |n_A|^2 |n_B|^2 falls below this (m^8) has a collapsed face in world
+# space: its angle is undefined and it exerts no force.
+DEGENERATE_NORMAL2 = 1e-40
+
+
+def hinge_weight(rest_length, area_A, area_B, k_bend):
+    """w = k_bend * 3 |e|^2 / (A_A + A_B): the discrete-shell weight of each hinge (N m)."""
+    return k_bend * 3.0 * np.asarray(rest_length) ** 2 / (np.asarray(area_A) + np.asarray(area_B))
+
+
+@njit(cache=True)
+def dihedral_angle(x0, x1, x2, x3):
+    """Signed bending angle theta of the hinge, in (-pi, pi]; 0 when flat (sign: module docstring)."""
+    a = x1 - x0
+    b = x2 - x0
+    c = x3 - x0
+    L = np.sqrt(a @ a)
+    y = -L * (a @ np.cross(b, c))
+    z = (a @ c) * (a @ b) - (a @ a) * (b @ c)
+    return np.arctan2(y, z)
+
+
+@njit(cache=True)
+def _skew(v):
+    """[v]_x: the matrix with [v]_x u = v x u."""
+    m = np.zeros((3, 3))
+    m[0, 1], m[0, 2] = -v[2], v[1]
+    m[1, 0], m[1, 2] = v[2], -v[0]
+    m[2, 0], m[2, 1] = -v[1], v[0]
+    return m
+
+
+@njit(cache=True)
+def _is_psd(H):
+    """True if H + eps I admits a Cholesky factorisation (H positive semi-definite up to eps)."""
+    n = H.shape[0]
+    scale = 0.0
+    for i in range(n):
+        scale = max(scale, abs(H[i, i]))
+    eps = 1e-12 * scale + 1e-300
+    L = np.zeros((n, n))
+    for j in range(n):
+        s = H[j, j] + eps
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if s <= 0.0:
+            return False
+        L[j, j] = np.sqrt(s)
+        for i in range(j + 1, n):
+            t = H[i, j]
+            for k in range(j):
+                t -= L[i, k] * L[j, k]
+            L[i, j] = t / L[j, j]
+    return True
+
+
+@njit(cache=True)
+def angle_derivatives(a, b, c):
+    """theta, gradient (9,) and Hessian (9, 9) with respect to (a, b, c); ok = False if degenerate."""
+    I3 = np.eye(3)
+    L2 = a @ a
+    L = np.sqrt(L2)
+    bxc = np.cross(b, c)
+    p = a @ bxc
+    ab, ac, bc = a @ b, a @ c, b @ c
+    y = -L * p
+    z = ac * ab - L2 * bc
+    r2 = y * y + z * z
+    gy = np.zeros(9)
+    gz = np.zeros(9)
+    Hy = np.zeros((9, 9))
+    Hz = np.zeros((9, 9))
+    if r2 < DEGENERATE_NORMAL2 or L == 0.0:
+        return 0.0, gy, Hy, False
+    # p = det(a, b, c): gradient and Hessian
+    gp = np.zeros(9)
+    gp[0:3] = bxc
+    gp[3:6] = np.cross(c, a)
+    gp[6:9] = np.cross(a, b)
+    Hp = np.zeros((9, 9))
+    Hp[0:3, 3:6] = -_skew(c)
+    Hp[3:6, 0:3] = _skew(c)
+    Hp[3:6, 6:9] = -_skew(a)
+    Hp[6:9, 3:6] = _skew(a)
+    Hp[6:9, 0:3] = -_skew(b)
+    Hp[0:3, 6:9] = _skew(b)
+    # L = |a|
+    ah = a / L
+    gL = np.zeros(9)
+    gL[0:3] = ah
+    HL = np.zeros((9, 9))
+    HL[0:3, 0:3] = (I3 - np.outer(ah, ah)) / L
+    # y = -L p
+    gy = -(p * gL + L * gp)
+    Hy = -(np.outer(gL, gp) + np.outer(gp, gL) + p * HL + L * Hp)
+    # z = (a.c)(a.b) - |a|^2 (b.c)
+    gz[0:3] = c * ab + b * ac - 2.0 * a * bc
+    gz[3:6] = a * ac - c * L2
+    gz[6:9] = a * ab - b * L2
+    Hz[0:3, 0:3] = np.outer(c, b) + np.outer(b, c) - 2.0 * bc * I3
+    Hz[0:3, 3:6] = np.outer(c, a) + ac * I3 - 2.0 * np.outer(a, c)
+    Hz[3:6, 0:3] = Hz[0:3, 3:6].T
+    Hz[0:3, 6:9] = ab * I3 + np.outer(b, a) - 2.0 * np.outer(a, b)
+    Hz[6:9, 0:3] = Hz[0:3, 6:9].T
+    Hz[3:6, 6:9] = np.outer(a, a) - L2 * I3
+    Hz[6:9, 3:6] = Hz[3:6, 6:9].T
+    theta = np.arctan2(y, z)
+    u = (z * gy - y * gz) / r2  # grad theta
+    # Hess theta = (z Hy - y Hz + gz gy^T - gy gz^T) / r2 - u (2 y gy + 2 z gz)^T / r2, symmetrised
+    H = (z * Hy - y * Hz + np.outer(gz, gy) - np.outer(gy, gz)) / r2 - np.outer(u, 2.0 * (y * gy + z * gz)) / r2
+    H = 0.5 * (H + H.T)
+    return theta, u, H, True
+
+
+@njit(cache=True)
+def bending_element_into(x0, x1, x2, x3, rest_theta, weight, project, grad, hess):
+    """Hinge energy; writes the gradient (12,) and Hessian (12, 12) w.r.t. (x0..x3), returns W."""
+    theta, u, H, ok = angle_derivatives(x1 - x0, x2 - x0, x3 - x0)
+    for i in range(12):
+        grad[i] = 0.0
+        for j in range(12):
+            hess[i, j] = 0.0
+    if not ok:
+        return 0.0
+    d = theta - rest_theta
+    g9 = weight * d * u
+    H9 = weight * (np.outer(u, u) + d * H)
+    if project and d != 0.0 and not _is_psd(H9):
+        project_psd(H9)
+    # (a, b, c) = (x1 - x0, x2 - x0, x3 - x0): x0 gets minus the sum, x1..x3 the blocks
+    for k in range(3):
+        for i in range(3):
+            grad[3 * (k + 1) + i] = g9[3 * k + i]
+            grad[i] -= g9[3 * k + i]
+    for k in range(3):
+        for l in range(3):
+            for i in range(3):
+                for j in range(3):
+                    h = H9[3 * k + i, 3 * l + j]
+                    hess[3 * (k + 1) + i, 3 * (l + 1) + j] = h
+                    hess[i, 3 * (l + 1) + j] -= h
+                    hess[3 * (k + 1) + i, j] -= h
+                    hess[i, j] += h
+    return 0.5 * weight * d * d
+
+
+@njit(cache=True)
+def bending_element(x0, x1, x2, x3, rest_theta, weight, project):
+    """(energy, gradient (12,), Hessian (12, 12)) of one hinge."""
+    grad = np.empty(12)
+    hess = np.empty((12, 12))
+    energy = bending_element_into(x0, x1, x2, x3, rest_theta, weight, project, grad, hess)
+    return energy, grad, hess
+
+
+@njit(cache=True, parallel=True)
+def bending_elements(node_x, edge_stencil, edge_rest_theta, edge_weight, project, out_energy, out_grad, out_hess):
+    """Energy (E,), gradient (E, 12), Hessian (E, 12, 12) of every hinge (each writes its own slot)."""
+    for e in prange(edge_stencil.shape[0]):
+        s = edge_stencil[e]
+        out_energy[e] = bending_element_into(node_x[s[0]], node_x[s[1]], node_x[s[2]], node_x[s[3]],
+                                             edge_rest_theta[e], edge_weight[e], project, out_grad[e], out_hess[e])

@@ -1,0 +1,118 @@
+"""Recorders: where a run logs its meshes for viewing. The base class does nothing.
+
+Entity tree (Rerun): ``world/cloth`` (Mesh3D), ``world/obstacles/<name>`` (Mesh3D),
+``world/camera`` (Transform3D world_from_camera + Pinhole). Timelines: ``frame`` (sequence)
+and ``sim_time`` (seconds).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..mesh import Mesh
+
+CLOTH_COLOR = (70, 130, 200, 255)  # RGBA of the cloth when no per-face colours are given
+OBSTACLE_COLOR = (180, 180, 180, 255)
+
+
+class Recorder:
+    """The do-nothing recorder: the solver runs and is tested without visualisation."""
+
+    def log_static(self, name: str, vertices, faces, color=None) -> None:
+        pass
+
+    def log_frame(self, frame: int, time_s: float, mesh: Mesh, face_colors=None, obstacles=(), camera=None) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+
+NullRecorder = Recorder
+
+
+def _rgba(colors) -> np.ndarray:
+    c = np.asarray(colors)
+    if c.dtype.kind == "f":
+        c = np.clip(np.round(c * 255), 0, 255).astype(np.uint8)
+    c = c.astype(np.uint8)
+    if c.shape[-1] == 3:
+        c = np.concatenate([c, np.full(c.shape[:-1] + (1,), 255, np.uint8)], axis=-1)
+    return c
+
+
+class RerunRecorder(Recorder):
+    """Streams a Rerun recording to an .rrd file as it goes (a crash keeps what was logged)."""
+
+    def __init__(self, path, app_id: str = "cloth"):
+        import rerun as rr
+
+        self.rr = rr
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.rec = rr.RecordingStream(app_id)
+        self.rec.save(str(self.path))
+        self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        self._static_obstacles: set[str] = set()
+
+    def log_static(self, name, vertices, faces, color=None):
+        self.rec.log(f"world/{name}", self.rr.Mesh3D(
+            vertex_positions=np.asarray(vertices, np.float32), triangle_indices=np.asarray(faces, np.uint32),
+            albedo_factor=color or OBSTACLE_COLOR), static=True)
+
+    def log_frame(self, frame, time_s, mesh, face_colors=None, obstacles=(), camera=None):
+        rr = self.rr
+        self.rec.set_time("frame", sequence=int(frame))
+        self.rec.set_time("sim_time", duration=float(time_s))
+        x = mesh.vert_x()
+        if face_colors is None:
+            self.rec.log("world/cloth", rr.Mesh3D(
+                vertex_positions=x.astype(np.float32), triangle_indices=mesh.face_verts.astype(np.uint32),
+                albedo_factor=CLOTH_COLOR))
+        else:  # unshared vertices, so that each face carries its own colour
+            pos = x[mesh.face_verts].reshape(-1, 3).astype(np.float32)
+            col = np.repeat(_rgba(face_colors), 3, axis=0)
+            self.rec.log("world/cloth", rr.Mesh3D(
+                vertex_positions=pos, triangle_indices=np.arange(pos.shape[0], dtype=np.uint32).reshape(-1, 3),
+                vertex_colors=col))
+        for ob in obstacles:
+            moving = ob.moving
+            if not moving and ob.name in self._static_obstacles:
+                continue
+            v, f = ob.to_mesh()
+            self.rec.log(f"world/obstacles/{ob.name}", rr.Mesh3D(
+                vertex_positions=np.asarray(v, np.float32), triangle_indices=np.asarray(f, np.uint32),
+                albedo_factor=OBSTACLE_COLOR), static=not moving)
+            if not moving:
+                self._static_obstacles.add(ob.name)
+        if camera is not None:
+            self._log_camera(camera)
+
+    def _log_camera(self, cam):
+        rr = self.rr
+        pos, look, up = (np.asarray(a, float) for a in (cam.position, cam.look_at, cam.up))
+        fwd = look - pos
+        fwd /= np.linalg.norm(fwd)
+        right = np.cross(fwd, up)
+        right /= np.linalg.norm(right)
+        down = np.cross(fwd, right)
+        # camera frame: x right, y down, z forward (Rerun's RDF convention)
+        world_from_camera = np.column_stack([right, down, fwd])
+        self.rec.log("world/camera", rr.Transform3D(translation=pos, mat3x3=world_from_camera))
+        f = 0.5 * cam.height / np.tan(np.radians(cam.fov_y_deg) / 2)
+        self.rec.log("world/camera", rr.Pinhole(focal_length=float(f), width=cam.width, height=cam.height,
+                                                camera_xyz=rr.ViewCoordinates.RDF))
+
+    def close(self):
+        if self.rec is not None:
+            self.rec.flush()
+            self.rec = None

@@ -1,0 +1,183 @@
+"""The frame loop: sizing and remeshing (adaptive modes), then N implicit steps with contact.
+
+One frame, as in DESIGN.md section 1::
+
+    remesh stage (mode hook; absent in mode=nonadaptive)
+    for each of the frame's steps:
+        handles -> prescribed positions at t + h
+        implicit Euler step (force terms of the declared effects, linear solve)
+        obstacle contact (only if the scene declares 'obstacles')
+    per-frame record
+
+The three modes share all of this; only the remesh stage (its sizing field) differs.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .assembly import SparsityPattern
+from .forces import Bending, ForceTerm, Gravity, Membrane, Wind, element_families
+from .integrator import implicit_euler_step
+from .linsolve import SolverOptions
+from .scene import Scene
+
+# Phases timed in every frame record (seconds of wall time, column time_<phase>_s).
+PHASES = ("sizing", "remesh", "physics", "solve", "collisions", "io", "other")
+
+
+class SimulationDiverged(RuntimeError):
+    """The state became non-finite or a node exceeded the speed limit."""
+
+
+def build_force_terms(scene: Scene) -> list[ForceTerm]:
+    """The force terms of the scene's declared effects, in a fixed order (built once)."""
+    terms: list[ForceTerm] = []
+    mu, lam = scene.material.lame()
+    if "membrane" in scene.effects:
+        terms.append(Membrane(mu, lam))
+    if "bending" in scene.effects:
+        terms.append(Bending(scene.material.bending_stiffness))
+    if "gravity" in scene.effects:
+        terms.append(Gravity(scene.gravity))
+    if "wind" in scene.effects:
+        w = scene.wind
+        terms.append(Wind(w.velocity, w.drag, w.gust_amplitude, w.gust_frequency))
+    return terms
+
+
+@dataclass
+class Remesher:
+    """Interface of the remesh stage (the adaptive-remeshing issue implements it).
+
+    `remesh(sim)` may change `sim.scene.mesh`; it returns True when the topology or the
+    material coordinates changed, so that the simulation rebuilds masses, rest data and the
+    solver's sparsity pattern (and only then). It fills `timings` with 'sizing' and 'remesh'.
+    """
+
+    def remesh(self, sim: "Simulation", timings: dict) -> bool:  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+class Simulation:
+    def __init__(self, scene: Scene, solver: SolverOptions | None = None,
+                 remesher: Remesher | None = None, max_speed: float = 100.0):
+        if not max_speed > 0:
+            raise ValueError(f"max_speed must be > 0, got {max_speed}")
+        self.scene = scene
+        self.solver = solver or SolverOptions()
+        self.remesher = remesher
+        self.max_speed = float(max_speed)  # m/s: a faster node means the run has gone bad
+        self.terms = build_force_terms(scene)
+        self.damping = ("damping" in scene.effects)
+        self.contact = None
+        if "obstacles" in scene.effects:
+            from .contact import resolve_obstacle_contacts
+            from .obstacles import ObstacleSet
+            self.obstacle_set = ObstacleSet(scene.obstacles)
+            self.contact = resolve_obstacle_contacts
+        self.frame = 0
+        self.time = 0.0
+        self.last_energy: dict = {}
+        self.rebuild()
+        if self.contact is not None:
+            self.obstacle_set.set_time(0.0)
+
+    @property
+    def mesh(self):
+        return self.scene.mesh
+
+    def rebuild(self) -> None:
+        """Refresh everything that depends on topology or rest state (after a remesh only)."""
+        mesh = self.scene.mesh
+        mesh.update_rest_data(self.scene.material.density)
+        self.pattern = SparsityPattern(mesh.n_nodes, element_families(mesh, self.terms))
+        for term in self.terms:
+            term.rebuild(mesh, self.pattern)
+
+    # ------------------------------------------------------------------------------------
+    def _fixed_targets(self, t: float) -> np.ndarray | None:
+        if not self.scene.handles:
+            return None
+        x = self.mesh.node_x.copy()
+        for handle in self.scene.handles:
+            x[handle.nodes] = handle.targets(t)
+        return x
+
+    def step(self, timings: dict, stats: dict) -> None:
+        scene, mesh, h = self.scene, self.scene.mesh, self.scene.dt
+        m = scene.material
+        s = implicit_euler_step(
+            mesh, self.terms, self.pattern, h, self.time,
+            m.damping_mass if self.damping else 0.0,
+            m.damping_stiffness if self.damping else 0.0,
+            self._fixed_targets(self.time + h), self.solver,
+        )
+        self.time += h
+        timings["physics"] += s.time_physics_s
+        timings["solve"] += s.time_solve_s
+        stats["solver_iterations"] += s.iterations
+        stats["solver_iterations_max"] = max(stats["solver_iterations_max"], s.iterations)
+        stats["solver_residual"] = max(stats["solver_residual"], s.residual)
+        self.last_energy = s.energy
+        if self.contact is not None:
+            t0 = time.perf_counter()
+            self.obstacle_set.set_time(self.time)
+            c = self.contact(mesh.node_x, mesh.node_v, mesh.node_pinned, self.obstacle_set,
+                             scene.thickness, scene.friction, h)
+            stats["contacts"] = max(stats["contacts"], int(c.get("contacts", 0)))
+            timings["collisions"] += time.perf_counter() - t0
+        self._check(stats)
+
+    def _check(self, stats: dict) -> None:
+        mesh = self.scene.mesh
+        frame = self.frame + 1
+        if not (np.all(np.isfinite(mesh.node_x)) and np.all(np.isfinite(mesh.node_v))):
+            raise SimulationDiverged(f"frame {frame}: non-finite node positions or velocities at t = {self.time:.4f} s")
+        speed = float(np.sqrt(np.max(np.einsum("ij,ij->i", mesh.node_v, mesh.node_v))))
+        if speed > self.max_speed:
+            raise SimulationDiverged(
+                f"frame {frame}: node speed {speed:.3g} m/s exceeds max_speed = {self.max_speed:g} m/s "
+                f"at t = {self.time:.4f} s")
+
+    def advance_frame(self) -> dict:
+        """Simulate one frame; return its record (one row of frames.parquet, without I/O time)."""
+        t_start = time.perf_counter()
+        timings = {p: 0.0 for p in PHASES}
+        stats = {"solver_iterations": 0, "solver_iterations_max": 0, "solver_residual": 0.0, "contacts": 0}
+        if self.remesher is not None:
+            if self.remesher.remesh(self, timings):
+                self.rebuild()
+        for _ in range(self.scene.steps_per_frame):
+            self.step(timings, stats)
+        self.frame += 1
+        record = self.state_record()
+        record.update(stats)
+        wall = time.perf_counter() - t_start
+        for p in PHASES:
+            record[f"time_{p}_s"] = timings[p]
+        record["time_other_s"] = max(wall - sum(timings[p] for p in PHASES if p != "other"), 0.0)
+        record["wall_s"] = wall
+        return record
+
+    def state_record(self) -> dict:
+        """Counts, energies and quality of the current state."""
+        mesh = self.scene.mesh
+        v2 = np.einsum("ij,ij->i", mesh.node_v, mesh.node_v)
+        energy = self.last_energy  # evaluated at the start of the last step: no extra assembly
+        return {
+            "frame": self.frame,
+            "sim_time_s": self.time,
+            "nodes": mesh.n_nodes,
+            "verts": mesh.n_verts,
+            "faces": mesh.n_faces,
+            "faces_in_view": float("nan"),  # filled when the scene has a camera (view-dependent issue)
+            "kinetic_energy_j": float(0.5 * np.sum(mesh.node_m * v2)),
+            "potential_energy_j": float(sum(energy.values())),
+            "elastic_energy_j": float(energy.get("membrane", 0.0) + energy.get("bending", 0.0)),
+            "max_speed_m_s": float(np.sqrt(v2.max())),
+            "min_face_quality": float(mesh.face_quality().min()),
+        }

@@ -1,0 +1,93 @@
+"""Sparse block assembly and the linear solvers, against dense brute force."""
+
+import numpy as np
+
+from cloth.assembly import SparsityPattern, apply_dirichlet, bsr_matvec, scatter_blocks, scatter_forces
+from cloth.linsolve import SolverOptions, solve
+from cloth.mesh import grid_mesh
+
+# Dense and sparse sums of the same O(1) products differ by round-off only.
+ROUNDOFF = 1e-12
+# PCG stops at a relative residual of 1e-10 here; the solution error is bounded by the
+# condition number (~1e2 for these diagonally dominated random systems) times that.
+PCG_TOL = 1e-10
+SOLUTION_TOL = 1e-7
+
+
+def _random_system(seed=0, nx=4, ny=3):
+    rng = np.random.default_rng(seed)
+    mesh = grid_mesh(1.0, 1.0, nx, ny)
+    fams = {"faces": mesh.face_nodes, "hinges": mesh.edge_stencil()}
+    pattern = SparsityPattern(mesh.n_nodes, fams)
+    data = pattern.zeros()
+    dense = np.zeros((3 * mesh.n_nodes, 3 * mesh.n_nodes))
+    for name, en in fams.items():
+        k = en.shape[1]
+        hess = rng.standard_normal((en.shape[0], 3 * k, 3 * k))
+        hess = hess @ hess.transpose(0, 2, 1)  # symmetric PSD element matrices
+        scatter_blocks(data, pattern.slots[name], hess, 1.0)
+        for e in range(en.shape[0]):
+            idx = (3 * en[e][:, None] + np.arange(3)).reshape(-1)
+            dense[np.ix_(idx, idx)] += hess[e]
+    # make it definite like M + h^2 K
+    for i in range(mesh.n_nodes):
+        data[pattern.diag[i]] += 10.0 * np.eye(3)
+    dense += 10.0 * np.eye(dense.shape[0])
+    return mesh, pattern, data, dense, rng
+
+
+def test_pattern_scatter_matches_dense_assembly():
+    mesh, pattern, data, dense, _ = _random_system()
+    assert np.allclose(pattern.to_scipy(data).toarray(), dense, rtol=0, atol=ROUNDOFF * np.abs(dense).max())
+    # pattern rows are sorted and contain the diagonal
+    for i in range(mesh.n_nodes):
+        row = pattern.indices[pattern.indptr[i]:pattern.indptr[i + 1]]
+        assert np.all(np.diff(row) > 0) and pattern.indices[pattern.diag[i]] == i
+
+
+def test_scatter_forces_and_matvec():
+    mesh, pattern, data, dense, rng = _random_system(1)
+    grad = rng.standard_normal((mesh.n_faces, 9))
+    f = np.zeros((mesh.n_nodes, 3))
+    scatter_forces(f, mesh.face_nodes, grad, -1.0)
+    ref = np.zeros((mesh.n_nodes, 3))
+    for e in range(mesh.n_faces):
+        for a in range(3):
+            ref[mesh.face_nodes[e, a]] -= grad[e, 3 * a:3 * a + 3]
+    assert np.allclose(f, ref, atol=ROUNDOFF)
+    x = rng.standard_normal((mesh.n_nodes, 3))
+    y = np.empty_like(x)
+    bsr_matvec(pattern.indptr, pattern.indices, data, x, y)
+    assert np.allclose(y.reshape(-1), dense @ x.reshape(-1), atol=ROUNDOFF * np.abs(dense).max() * 10)
+
+
+def test_pcg_and_direct_agree_with_dense_solve():
+    mesh, pattern, data, dense, rng = _random_system(2)
+    b = rng.standard_normal((mesh.n_nodes, 3))
+    ref = np.linalg.solve(dense, b.reshape(-1)).reshape(-1, 3)
+    x, it, res = solve(pattern, data, b, SolverOptions("pcg", PCG_TOL, 1000))
+    assert res <= PCG_TOL and it > 0
+    assert np.abs(x - ref).max() < SOLUTION_TOL
+    x, _, res = solve(pattern, data, b, SolverOptions("direct"))
+    assert np.abs(x - ref).max() < SOLUTION_TOL
+
+
+def test_dirichlet_rows_give_prescribed_values_and_keep_symmetry():
+    mesh, pattern, data, dense, rng = _random_system(3)
+    b = rng.standard_normal((mesh.n_nodes, 3))
+    fixed = np.zeros(mesh.n_nodes, bool)
+    fixed[[0, 5]] = True
+    value = rng.standard_normal((mesh.n_nodes, 3))
+    apply_dirichlet(pattern.indptr, pattern.indices, data, b, fixed, value)
+    A = pattern.to_scipy(data).toarray()
+    assert np.allclose(A, A.T, atol=ROUNDOFF * np.abs(A).max())
+    x, _, _ = solve(pattern, data, b, SolverOptions("pcg", PCG_TOL, 1000))
+    assert np.allclose(x[fixed], value[fixed], atol=SOLUTION_TOL)
+    # free unknowns solve the reduced system of the original matrix
+    free = np.repeat(~fixed, 3)
+    fixed3 = np.repeat(fixed, 3)
+    _, _, _, dense0, rng0 = _random_system(3)  # the same system and right-hand side, unmodified
+    b_orig = rng0.standard_normal((mesh.n_nodes, 3)).reshape(-1)
+    rhs = b_orig[free] - dense0[np.ix_(free, fixed3)] @ value.reshape(-1)[fixed3]
+    ref = np.linalg.solve(dense0[np.ix_(free, free)], rhs)
+    assert np.abs(x.reshape(-1)[free] - ref).max() < SOLUTION_TOL

@@ -1,0 +1,138 @@
+"""Whole-simulation physical checks in mode=nonadaptive."""
+
+import numpy as np
+import pytest
+
+import cloth.contact
+import cloth.forces
+from cloth.assembly import SparsityPattern
+from cloth.forces import Bending, ForceAccumulator, Membrane, element_families
+from cloth.material import Material
+from cloth.mesh import grid_mesh
+from cloth.scene import Scene
+from cloth.scenes import build_scene
+from cloth.simulation import Simulation
+
+COTTON = Material("cotton", density=0.12, youngs_modulus=2.0e3, poisson_ratio=0.3,
+                  bending_stiffness=5e-6, damping_mass=0.05, damping_stiffness=2e-3)
+# 100x the membrane and bending stiffness of denim: the stiff-material stability case.
+STIFF = Material("stiff", density=0.4, youngs_modulus=2.0e6, poisson_ratio=0.3,
+                 bending_stiffness=8e-3, damping_mass=0.0, damping_stiffness=0.0)
+G = 9.81
+# Positions after a few hundred steps of O(1) arithmetic agree to this (metres).
+ROUNDOFF_M = 1e-9
+# Internal forces of a deformed sheet cancel to round-off relative to their magnitude.
+FORCE_BALANCE_REL = 1e-10
+# The contact projection leaves nodes at phi = thickness up to round-off in the distance.
+CONTACT_SLACK = 1e-9
+
+
+def test_free_fall_follows_g_t2_over_2():
+    mesh = grid_mesh(0.5, 0.5, 6, 6, origin=(0, 0, 2.0))
+    scene = Scene("fall", mesh, COTTON, {"membrane", "bending", "gravity"}, frame_time=0.04, steps_per_frame=4)
+    sim = Simulation(scene)
+    z0 = mesh.node_x[:, 2].copy()
+    frames = 10
+    for _ in range(frames):
+        sim.advance_frame()
+    t, h, n = sim.time, scene.dt, frames * scene.steps_per_frame
+    dz = mesh.node_x[:, 2] - z0
+    # backward Euler: v_k = -g h k, x_n = x_0 - g h^2 n (n + 1) / 2 exactly (the sheet stays flat)
+    assert np.allclose(dz, -G * h * h * n * (n + 1) / 2, atol=ROUNDOFF_M)
+    # and that is g t^2 / 2 up to the method's first-order error g h t / 2
+    assert np.allclose(dz, -G * t * t / 2, atol=G * h * t / 2 + ROUNDOFF_M)
+    assert np.allclose(mesh.node_v[:, 2], -G * t, atol=ROUNDOFF_M)
+
+
+def test_internal_forces_sum_to_zero_on_a_deformed_sheet():
+    rng = np.random.default_rng(4)
+    mesh = grid_mesh(1.0, 1.0, 5, 5)
+    mesh.update_rest_data(0.1)
+    mesh.node_x += 0.05 * rng.standard_normal(mesh.node_x.shape)
+    terms = [Membrane(*COTTON.lame()), Bending(1e-3)]
+    pattern = SparsityPattern(mesh.n_nodes, element_families(mesh, terms))
+    acc = ForceAccumulator.zeros(mesh.n_nodes, pattern)
+    for term in terms:
+        term.rebuild(mesh, pattern)
+        term.accumulate(mesh, 0.0, acc)
+    scale = np.abs(acc.force).max()
+    assert scale > 0
+    assert np.abs(acc.force.sum(0)).max() < FORCE_BALANCE_REL * scale * mesh.n_nodes
+    torque = np.cross(mesh.node_x, acc.force).sum(0)
+    assert np.abs(torque).max() < FORCE_BALANCE_REL * scale * mesh.n_nodes
+    # the assembled stiffness is symmetric
+    K = pattern.to_scipy(acc.K)
+    assert abs(K - K.T).max() < FORCE_BALANCE_REL * abs(K).max()
+
+
+def test_stiff_hanging_sheet_with_one_frame_steps_stays_finite_and_settles():
+    scene = build_scene("hanging_sheet", STIFF, resolution=10, frame_time=1 / 30, steps_per_frame=1,
+                        effects=("membrane", "bending", "gravity"))
+    sim = Simulation(scene, max_speed=50.0)
+    ke = [sim.advance_frame()["kinetic_energy_j"] for _ in range(150)]
+    assert np.all(np.isfinite(sim.mesh.node_x))
+    ke = np.asarray(ke)
+    # the swing's energy peaks early; with one step per frame implicit Euler damps it out
+    assert ke.max() > 0
+    assert ke[-30:].mean() < 0.05 * ke.max()
+    assert ke[-30:].mean() < ke[30:60].mean()
+
+
+def test_draped_sheet_leaves_no_node_inside_sphere_or_ground():
+    scene = build_scene("sheet_on_sphere", COTTON, resolution=14, effects=(
+        "membrane", "bending", "gravity", "damping", "obstacles"))
+    sim = Simulation(scene)
+    sphere_c, sphere_r = np.array([0.0, 0.0, 0.25]), 0.25
+    for _ in range(45):
+        sim.advance_frame()
+        x = sim.mesh.node_x
+        d_sphere = np.linalg.norm(x - sphere_c, axis=1) - sphere_r
+        assert d_sphere.min() >= scene.thickness - CONTACT_SLACK
+        assert x[:, 2].min() >= scene.thickness - CONTACT_SLACK
+    # it has landed: the centre rests on the sphere's top, the corners hang below it
+    centre = np.argmin(np.linalg.norm(sim.mesh.node_x[:, :2], axis=1))
+    assert sim.mesh.node_x[centre, 2] == pytest.approx(2 * sphere_r + scene.thickness, abs=0.01)
+    assert sim.mesh.node_x[:, 2].min() < sphere_r
+
+
+def _run_positions(seed):
+    scene = build_scene("flag", COTTON, resolution=8, seed=seed)
+    sim = Simulation(scene)
+    for _ in range(10):
+        sim.advance_frame()
+    return sim.mesh.node_x.copy()
+
+
+def test_two_runs_of_one_config_are_identical():
+    a, b = _run_positions(3), _run_positions(3)
+    assert np.array_equal(a, b)
+    assert not np.array_equal(a, _run_positions(4))  # the seed matters
+
+
+def test_undeclared_effects_are_never_called(monkeypatch):
+    calls = {"wind": 0, "contact": 0}
+    wind_accumulate = cloth.forces.Wind.accumulate
+    contact = cloth.contact.resolve_obstacle_contacts
+
+    def counting_wind(self, *args):
+        calls["wind"] += 1
+        return wind_accumulate(self, *args)
+
+    def counting_contact(*args, **kwargs):
+        calls["contact"] += 1
+        return contact(*args, **kwargs)
+
+    monkeypatch.setattr(cloth.forces.Wind, "accumulate", counting_wind)
+    monkeypatch.setattr(cloth.contact, "resolve_obstacle_contacts", counting_contact)
+    sim = Simulation(build_scene("hanging_sheet", COTTON, resolution=6))
+    for _ in range(3):
+        sim.advance_frame()
+    assert calls == {"wind": 0, "contact": 0}
+    assert [t.name for t in sim.terms] == ["membrane", "bending", "gravity"]
+    # the same counters do count when the effects are declared
+    sim = Simulation(build_scene("flag", COTTON, resolution=6))
+    sim.advance_frame()
+    assert calls["wind"] == sim.scene.steps_per_frame
+    sim = Simulation(build_scene("sheet_on_sphere", COTTON, resolution=6))
+    sim.advance_frame()
+    assert calls["contact"] == sim.scene.steps_per_frame
