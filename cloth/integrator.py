@@ -57,11 +57,14 @@ def implicit_euler_step(
     damping_stiffness: float,
     fixed_targets: np.ndarray | None,
     options: SolverOptions,
-) -> StepStats:
+    dv_guess: np.ndarray | None = None,
+) -> tuple[StepStats, np.ndarray]:
     """Advance `mesh.node_x`, `mesh.node_v` by one step of length `h` (modifies `mesh` in place).
 
     `fixed_targets` is (n_nodes, 3) with the positions at t + h of the pinned nodes
-    (`mesh.node_pinned`); None when no node is pinned.
+    (`mesh.node_pinned`); None when no node is pinned. `dv_guess` warm-starts the iterative
+    solver (the previous step's dv: velocity changes vary smoothly in time). Returns the step's
+    statistics and dv.
     """
     t0 = time.perf_counter()
     acc = ForceAccumulator.zeros(mesh.n_nodes, pattern)
@@ -80,10 +83,13 @@ def implicit_euler_step(
         dv_fixed[pinned] = (fixed_targets[pinned] - mesh.node_x[pinned]) / h - v[pinned]
         apply_dirichlet(pattern.indptr, pattern.indices, A, rhs, pinned, dv_fixed)
     t1 = time.perf_counter()
-    dv, iterations, residual = solve(pattern, A, rhs, options)
+    if dv_guess is not None and any_pinned:
+        dv_guess = dv_guess.copy()
+        dv_guess[pinned] = dv_fixed[pinned]
+    dv, iterations, residual = solve(pattern, A, rhs, options, x0=dv_guess)
     t2 = time.perf_counter()
     mesh.node_v += dv
     mesh.node_x += h * mesh.node_v
     if any_pinned:  # land exactly on the targets, free of round-off drift
         mesh.node_x[pinned] = fixed_targets[pinned]
-    return StepStats(iterations, residual, t1 - t0, t2 - t1, acc.energy)
+    return StepStats(iterations, residual, t1 - t0, t2 - t1, acc.energy), dv

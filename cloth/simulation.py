@@ -95,6 +95,7 @@ class Simulation:
         mesh = self.scene.mesh
         mesh.update_rest_data(self.scene.material.density)
         self.pattern = SparsityPattern(mesh.n_nodes, element_families(mesh, self.terms))
+        self.last_dv = None  # warm start of the solver; its size changes with the node count
         for term in self.terms:
             term.rebuild(mesh, self.pattern)
 
@@ -110,11 +111,11 @@ class Simulation:
     def step(self, timings: dict, stats: dict) -> None:
         scene, mesh, h = self.scene, self.scene.mesh, self.scene.dt
         m = scene.material
-        s = implicit_euler_step(
+        s, self.last_dv = implicit_euler_step(
             mesh, self.terms, self.pattern, h, self.time,
             m.damping_mass if self.damping else 0.0,
             m.damping_stiffness if self.damping else 0.0,
-            self._fixed_targets(self.time + h), self.solver,
+            self._fixed_targets(self.time + h), self.solver, self.last_dv,
         )
         self.time += h
         timings["physics"] += s.time_physics_s

@@ -1,0 +1,201 @@
+"""Membrane and bending elements: finite differences, invariances, projection, hand-computed cases."""
+
+import numpy as np
+import pytest
+
+from cloth.bending import bending_element, bending_elements, dihedral_angle, hinge_weight
+from cloth.membrane import (face_green_strain, green_strain, lame_parameters, membrane_elements,
+                            stvk_element)
+
+# Central differences with step 1e-6 on O(1) coordinates have truncation error ~1e-12 and
+# round-off ~1e-10 relative; the issue asks for agreement below 1e-5.
+FD_STEP = 1e-6
+FD_REL_TOL = 1e-5
+# Forces of an element at rest, and the net force/torque of any element, vanish to round-off.
+ROUNDOFF = 1e-10
+# A projected Hessian's smallest eigenvalue may be negative by round-off of the eigen-solver.
+PSD_TOL = 1e-10
+
+MU, LAM = 3.0, 2.0
+rng = np.random.default_rng(7)
+
+
+def _rest_triangle(seed):
+    r = np.random.default_rng(seed)
+    u = r.standard_normal((3, 2))
+    d1, d2 = u[1] - u[0], u[2] - u[0]
+    if d1[0] * d2[1] - d1[1] * d2[0] < 0:
+        u = u[[0, 2, 1]]
+    Dm = np.column_stack([u[1] - u[0], u[2] - u[0]])
+    return u, np.linalg.inv(Dm), 0.5 * np.linalg.det(Dm)
+
+
+def _membrane(x, B, A, project=False):
+    return stvk_element(x[0:3], x[3:6], x[6:9], B, A, MU, LAM, project)
+
+
+def _bending(x, rest=0.3, w=2.0, project=False):
+    return bending_element(x[0:3], x[3:6], x[6:9], x[9:12], rest, w, project)
+
+
+def _fd_grad(energy, x):
+    g = np.empty_like(x)
+    for i in range(x.size):
+        e = np.zeros_like(x)
+        e[i] = FD_STEP
+        g[i] = (energy(x + e) - energy(x - e)) / (2 * FD_STEP)
+    return g
+
+
+def _fd_hess(grad, x):
+    H = np.empty((x.size, x.size))
+    for i in range(x.size):
+        e = np.zeros_like(x)
+        e[i] = FD_STEP
+        H[:, i] = (grad(x + e) - grad(x - e)) / (2 * FD_STEP)
+    return H
+
+
+def _rel(a, b):
+    return np.linalg.norm(a - b) / np.linalg.norm(b)
+
+
+def _membrane_cases():
+    """Random deformations: general, stretched, compressed (both directions), one-sided."""
+    for seed in range(4):
+        u, B, A = _rest_triangle(seed)
+        x0 = np.column_stack([u, np.zeros(3)])
+        yield u, B, A, (x0 + 0.3 * rng.standard_normal((3, 3))).reshape(-1)
+        yield u, B, A, (x0 * [1.3, 1.1, 1] + 0.01 * rng.standard_normal((3, 3))).reshape(-1)
+        yield u, B, A, (x0 * [0.7, 0.8, 1] + 0.01 * rng.standard_normal((3, 3))).reshape(-1)
+        yield u, B, A, (x0 * [1.2, 0.6, 1] + 0.01 * rng.standard_normal((3, 3))).reshape(-1)
+
+
+def _hinges():
+    """Random hinges plus nearly flat and sharply folded ones."""
+    base = np.array([[0, 0, 0], [1, 0, 0], [0.4, 0.9, 0], [0.6, -0.8, 0]], float)
+    for _ in range(4):
+        yield rng.standard_normal((4, 3)).reshape(-1)
+    for fold in (0.05, 1.0, 2.5, -1.5):
+        x = base.copy()
+        x[3] = [0.6, -0.8 * np.cos(fold), -0.8 * np.sin(fold)]
+        yield (x + 0.01 * rng.standard_normal((4, 3))).reshape(-1)
+
+
+@pytest.mark.parametrize("case", range(16))
+def test_membrane_gradient_and_hessian_match_finite_differences(case):
+    u, B, A, x = list(_membrane_cases())[case]
+    _, g, H = _membrane(x, B, A)
+    assert _rel(g, _fd_grad(lambda y: _membrane(y, B, A)[0], x)) < FD_REL_TOL
+    assert _rel(H, _fd_hess(lambda y: _membrane(y, B, A)[1], x)) < FD_REL_TOL
+    assert np.allclose(H, H.T, atol=ROUNDOFF * np.abs(H).max())
+
+
+@pytest.mark.parametrize("case", range(8))
+def test_bending_gradient_and_hessian_match_finite_differences(case):
+    x = list(_hinges())[case]
+    _, g, H = _bending(x)
+    assert _rel(g, _fd_grad(lambda y: _bending(y)[0], x)) < FD_REL_TOL
+    assert _rel(H, _fd_hess(lambda y: _bending(y)[1], x)) < FD_REL_TOL
+    assert np.allclose(H, H.T, atol=ROUNDOFF * np.abs(H).max())
+
+
+def _rotation(seed):
+    q, _ = np.linalg.qr(np.random.default_rng(seed).standard_normal((3, 3)))
+    return q * np.sign(np.linalg.det(q))
+
+
+def test_zero_energy_and_force_at_rest():
+    u, B, A = _rest_triangle(11)
+    x = (np.column_stack([u, np.zeros(3)]) @ _rotation(1).T + [0.3, -2, 5]).reshape(-1)
+    e, g, _ = _membrane(x, B, A)
+    assert abs(e) < ROUNDOFF and np.abs(g).max() < ROUNDOFF
+    flat = np.array([[0, 0, 0], [1, 0, 0], [0.4, 0.9, 0], [0.6, -0.8, 0]], float) @ _rotation(2).T
+    e, g, _ = _bending(flat.reshape(-1), rest=0.0)
+    assert abs(e) < ROUNDOFF and np.abs(g).max() < ROUNDOFF
+    folded = list(_hinges())[6]
+    theta = dihedral_angle(folded[0:3], folded[3:6], folded[6:9], folded[9:12])
+    e, g, _ = _bending(folded, rest=theta)
+    assert abs(e) < ROUNDOFF and np.abs(g).max() < ROUNDOFF
+
+
+def test_forces_have_no_net_force_or_torque():
+    for x, grad in [(c[3], _membrane(c[3], c[1], c[2])[1]) for c in _membrane_cases()] + \
+                   [(h, _bending(h)[1]) for h in _hinges()]:
+        f = -grad.reshape(-1, 3)
+        p = x.reshape(-1, 3)
+        scale = np.abs(f).max() * max(1.0, np.abs(p).max())
+        assert np.abs(f.sum(0)).max() < ROUNDOFF * scale
+        assert np.abs(np.cross(p, f).sum(0)).max() < ROUNDOFF * scale
+
+
+def test_projected_hessians_are_psd_and_exact_where_already_psd():
+    n_indefinite = 0
+    cases = [(lambda y, c=c, p=False: _membrane(y, c[1], c[2], p), c[3]) for c in _membrane_cases()]
+    cases += [(lambda y, p=False: _bending(y, project=p), h) for h in _hinges()]
+    for element, x in cases:
+        H = element(x)[2]
+        Hp = element(x, p=True)[2]
+        scale = np.abs(H).max()
+        assert np.linalg.eigvalsh(Hp).min() >= -PSD_TOL * scale
+        if np.linalg.eigvalsh(H).min() >= -PSD_TOL * scale:
+            assert np.allclose(Hp, H, atol=ROUNDOFF * scale)
+        else:
+            n_indefinite += 1
+    assert n_indefinite > 0  # the cases do exercise the projection
+
+
+def test_green_strain_and_stvk_energy_of_a_uniform_stretch():
+    F = np.array([[1.1, 0.0], [0.0, 1.0], [0.0, 0.0]])
+    assert np.allclose(green_strain(F), [[0.105, 0.0], [0.0, 0.0]], atol=ROUNDOFF)
+    u, B, A = _rest_triangle(3)
+    x = np.column_stack([u[:, 0] * 1.1, u[:, 1], np.zeros(3)]).reshape(-1)
+    e = _membrane(x, B, A)[0]
+    assert e == pytest.approx(A * (MU + LAM / 2) * 0.105 ** 2, rel=1e-12)
+
+
+def test_lame_parameters_of_plane_stress():
+    mu, lam = lame_parameters(1000.0, 0.25)
+    assert mu == pytest.approx(400.0) and lam == pytest.approx(1000.0 * 0.25 / (1 - 0.0625))
+
+
+def test_right_angle_fold_has_the_documented_sign_and_energy():
+    x0, x1 = np.zeros(3), np.array([1.0, 0, 0])
+    x2 = np.array([0.5, 1.0, 0])  # face A in the z = 0 plane, normal +z
+    below = np.array([0.5, 0.0, -1.0])  # x3 behind face A: theta = +pi/2
+    above = np.array([0.5, 0.0, 1.0])
+    assert dihedral_angle(x0, x1, x2, below) == pytest.approx(np.pi / 2)
+    assert dihedral_angle(x0, x1, x2, above) == pytest.approx(-np.pi / 2)
+    w = 0.7
+    e = bending_element(x0, x1, x2, below, 0.0, w, False)[0]
+    assert e == pytest.approx(0.5 * w * (np.pi / 2) ** 2)
+    assert hinge_weight(2.0, 1.0, 3.0, 0.5) == pytest.approx(0.5 * 3 * 4 / 4)
+
+
+def test_degenerate_hinge_exerts_no_force():
+    x = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0.5, -1, 0]], float).reshape(-1)  # face A collapsed
+    e, g, H = _bending(x)
+    assert np.all(np.isfinite(g)) and np.abs(g).max() == 0 and np.abs(H).max() == 0 and e == 0
+
+
+def test_batch_kernels_match_single_elements():
+    from cloth.mesh import grid_mesh
+    mesh = grid_mesh(1.0, 1.0, 3, 3)
+    x = mesh.node_x + 0.05 * rng.standard_normal(mesh.node_x.shape)
+    F = mesh.n_faces
+    e, g, H = np.empty(F), np.empty((F, 9)), np.empty((F, 9, 9))
+    membrane_elements(x, mesh.face_nodes, mesh.face_Dm_inv, mesh.face_area, MU, LAM, True, e, g, H)
+    strains = face_green_strain(x, mesh.face_nodes, mesh.face_Dm_inv)
+    for f in range(F):
+        n = mesh.face_nodes[f]
+        ef, gf, Hf = stvk_element(x[n[0]], x[n[1]], x[n[2]], mesh.face_Dm_inv[f], mesh.face_area[f], MU, LAM, True)
+        assert e[f] == ef and np.array_equal(g[f], gf) and np.array_equal(H[f], Hf)
+    assert strains.shape == (F, 2, 2) and np.allclose(strains, strains.transpose(0, 2, 1))
+    st = mesh.edge_stencil()
+    E = st.shape[0]
+    rest, w = np.full(E, 0.1), np.linspace(1, 2, E)
+    e, g, H = np.empty(E), np.empty((E, 12)), np.empty((E, 12, 12))
+    bending_elements(x, st, rest, w, True, e, g, H)
+    for k in range(E):
+        ek, gk, Hk = bending_element(*(x[i] for i in st[k]), rest[k], w[k], True)
+        assert e[k] == ek and np.array_equal(g[k], gk) and np.array_equal(H[k], Hk)
