@@ -20,33 +20,65 @@ RESOLVED_FRACTION = 1e-9
 
 
 @njit(cache=True)
-def _project(node_x, node_v, active, phi, normal, obs_v, thickness, friction, dt):
-    """Project the active nodes with phi < thickness; returns the number moved (modifies x, v)."""
+def _project(node_x, node_v, active, phi, normal, obs_v, thickness, friction):
+    """Project each active node out of every obstacle it is inside (modifies x, v in place).
+
+    phi (K, m), normal (K, m, 3), obs_v (K, m, 3) hold the queries of the K obstacles for the m
+    active nodes. The position correction is the smallest dx with n_k . dx = thickness - phi_k
+    for every violated obstacle k (dx = N^T (N N^T)^-1 depth, solved for the violated set), so a
+    node wedged between two obstacles leaves both at once instead of bouncing between them.
+    Velocities then lose their approaching normal part against each violated obstacle, with
+    Coulomb friction on the tangential part. Returns the number of nodes moved.
+    """
+    K = phi.shape[0]
     moved = 0
+    N = np.empty((K, 3))
+    depth = np.empty(K)
+    idx = np.empty(K, dtype=np.int64)
     for k in range(active.shape[0]):
         i = active[k]
-        depth = thickness - phi[k]
-        if depth <= 0.0:
+        m = 0
+        for o in range(K):
+            if phi[o, k] < thickness:
+                N[m] = normal[o, k]
+                depth[m] = thickness - phi[o, k]
+                idx[m] = o
+                m += 1
+        if m == 0:
             continue
         moved += 1
-        n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
-        node_x[i, 0] += depth * n0
-        node_x[i, 1] += depth * n1
-        node_x[i, 2] += depth * n2
-        r0 = node_v[i, 0] - obs_v[k, 0]
-        r1 = node_v[i, 1] - obs_v[k, 1]
-        r2 = node_v[i, 2] - obs_v[k, 2]
-        rn = r0 * n0 + r1 * n1 + r2 * n2
-        dvn = -rn if rn < 0.0 else 0.0  # remove the approaching part of the normal velocity
-        t0, t1, t2 = r0 - rn * n0, r1 - rn * n1, r2 - rn * n2
-        tn = np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
-        scale = 1.0
-        if tn > 0.0:
-            scale = max(0.0, 1.0 - friction * dvn / tn)
-        rn_new = rn + dvn
-        node_v[i, 0] = obs_v[k, 0] + rn_new * n0 + scale * t0
-        node_v[i, 1] = obs_v[k, 1] + rn_new * n1 + scale * t1
-        node_v[i, 2] = obs_v[k, 2] + rn_new * n2 + scale * t2
+        G = N[:m] @ N[:m].T
+        for a in range(m):
+            G[a, a] += 1e-12
+        lam = np.linalg.solve(G, depth[:m])
+        for a in range(m):
+            if lam[a] < 0.0:  # a constraint the others already satisfy pulls back: drop its pull
+                lam[a] = 0.0
+        dx = N[:m].T @ lam
+        if m > 1:  # make sure every violated obstacle is left (the clamp above can undershoot)
+            for a in range(m):
+                short = depth[a] - (N[a, 0] * dx[0] + N[a, 1] * dx[1] + N[a, 2] * dx[2])
+                if short > 0.0:
+                    dx += short * N[a]
+        for d in range(3):
+            node_x[i, d] += dx[d]
+        for a in range(m):
+            o = idx[a]
+            n0, n1, n2 = N[a, 0], N[a, 1], N[a, 2]
+            r0 = node_v[i, 0] - obs_v[o, k, 0]
+            r1 = node_v[i, 1] - obs_v[o, k, 1]
+            r2 = node_v[i, 2] - obs_v[o, k, 2]
+            rn = r0 * n0 + r1 * n1 + r2 * n2
+            dvn = -rn if rn < 0.0 else 0.0  # remove the approaching part of the normal velocity
+            t0, t1, t2 = r0 - rn * n0, r1 - rn * n1, r2 - rn * n2
+            tn = np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+            scale = 1.0
+            if tn > 0.0:
+                scale = max(0.0, 1.0 - friction * dvn / tn)
+            rn_new = rn + dvn
+            node_v[i, 0] = obs_v[o, k, 0] + rn_new * n0 + scale * t0
+            node_v[i, 1] = obs_v[o, k, 1] + rn_new * n1 + scale * t1
+            node_v[i, 2] = obs_v[o, k, 2] + rn_new * n2 + scale * t2
     return moved
 
 
@@ -63,19 +95,21 @@ def resolve_obstacle_contacts(node_x, node_v, node_pinned, obstacles: ObstacleSe
     if not obstacles.obstacles or free.size == 0:
         return stats
     active = free
-    for p in range(max_passes):
-        phi, normal, vel = obstacles.query(node_x[active])
-        inside = phi < thickness * (1.0 - RESOLVED_FRACTION)
+    limit = thickness * (1.0 - RESOLVED_FRACTION)
+    for p in range(max_passes + 1):
+        phi, normal, vel = obstacles.query_each(node_x[active])
+        inside = np.any(phi < limit, axis=0)
         if not inside.any():
+            break
+        if p == max_passes:
+            stats["remaining"] = int(inside.sum())
             break
         if p == 0:
             stats["contacts"] = int(inside.sum())
             stats["max_depth_m"] = float(np.max(thickness - phi))
-        idx = np.flatnonzero(inside)
-        active = active[idx]
-        _project(node_x, node_v, active, phi[idx], normal[idx], vel[idx], thickness, friction, dt)
+        sel = np.flatnonzero(inside)
+        active = active[sel]
+        _project(node_x, node_v, active, np.ascontiguousarray(phi[:, sel]), np.ascontiguousarray(normal[:, sel]),
+                 np.ascontiguousarray(vel[:, sel]), limit + RESOLVED_FRACTION * thickness, friction)
         stats["passes"] = p + 1
-    else:
-        phi, _, _ = obstacles.query(node_x[active])
-        stats["remaining"] = int(np.sum(phi < thickness * (1.0 - RESOLVED_FRACTION)))
     return stats

@@ -294,6 +294,11 @@ class ObstacleSet:
         for ob in self.obstacles:
             ob.set_time(t)
 
+    def query_each(self, points: np.ndarray):
+        """Per-obstacle queries stacked: phi (K, n), normal (K, n, 3), velocity (K, n, 3)."""
+        out = [ob.query(points) for ob in self.obstacles]
+        return (np.stack([o[0] for o in out]), np.stack([o[1] for o in out]), np.stack([o[2] for o in out]))
+
     def query(self, points: np.ndarray):
         n = points.shape[0]
         phi = np.full(n, np.inf)
