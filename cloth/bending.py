@@ -53,16 +53,6 @@ def dihedral_angle(x0, x1, x2, x3):
 
 
 @njit(cache=True)
-def _skew(v):
-    """[v]_x: the matrix with [v]_x u = v x u."""
-    m = np.zeros((3, 3))
-    m[0, 1], m[0, 2] = -v[2], v[1]
-    m[1, 0], m[1, 2] = v[2], -v[0]
-    m[2, 0], m[2, 1] = -v[1], v[0]
-    return m
-
-
-@njit(cache=True)
 def _is_psd(H):
     """True if H + eps I admits a Cholesky factorisation (H positive semi-definite up to eps)."""
     n = H.shape[0]
@@ -87,60 +77,93 @@ def _is_psd(H):
 
 
 @njit(cache=True)
+def _add_skew(H, r0, c0, v, s):
+    """H[r0:r0+3, c0:c0+3] += s [v]_x (accumulates into H)."""
+    H[r0, c0 + 1] -= s * v[2]
+    H[r0, c0 + 2] += s * v[1]
+    H[r0 + 1, c0] += s * v[2]
+    H[r0 + 1, c0 + 2] -= s * v[0]
+    H[r0 + 2, c0] -= s * v[1]
+    H[r0 + 2, c0 + 1] += s * v[0]
+
+
+@njit(cache=True)
 def angle_derivatives(a, b, c):
-    """theta, gradient (9,) and Hessian (9, 9) with respect to (a, b, c); ok = False if degenerate."""
-    I3 = np.eye(3)
-    L2 = a @ a
+    """theta, gradient (9,) and Hessian (9, 9) with respect to (a, b, c); ok = False if degenerate.
+
+    Hess theta = (z Hy - y Hz + gz gy^T - gy gz^T) / r2 - u (2 y gy + 2 z gz)^T / r2, with
+    u = grad theta = (z gy - y gz) / r2 and r2 = y^2 + z^2; symmetrised against round-off.
+    """
+    L2 = a[0] * a[0] + a[1] * a[1] + a[2] * a[2]
     L = np.sqrt(L2)
     bxc = np.cross(b, c)
-    p = a @ bxc
-    ab, ac, bc = a @ b, a @ c, b @ c
+    cxa = np.cross(c, a)
+    axb = np.cross(a, b)
+    p = a[0] * bxc[0] + a[1] * bxc[1] + a[2] * bxc[2]
+    ab = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    ac = a[0] * c[0] + a[1] * c[1] + a[2] * c[2]
+    bc = b[0] * c[0] + b[1] * c[1] + b[2] * c[2]
     y = -L * p
     z = ac * ab - L2 * bc
     r2 = y * y + z * z
-    gy = np.zeros(9)
-    gz = np.zeros(9)
-    Hy = np.zeros((9, 9))
-    Hz = np.zeros((9, 9))
+    u = np.zeros(9)
+    H = np.zeros((9, 9))
     if r2 < DEGENERATE_NORMAL2 or L == 0.0:
-        return 0.0, gy, Hy, False
-    # p = det(a, b, c): gradient and Hessian
-    gp = np.zeros(9)
-    gp[0:3] = bxc
-    gp[3:6] = np.cross(c, a)
-    gp[6:9] = np.cross(a, b)
-    Hp = np.zeros((9, 9))
-    Hp[0:3, 3:6] = -_skew(c)
-    Hp[3:6, 0:3] = _skew(c)
-    Hp[3:6, 6:9] = -_skew(a)
-    Hp[6:9, 3:6] = _skew(a)
-    Hp[6:9, 0:3] = -_skew(b)
-    Hp[0:3, 6:9] = _skew(b)
-    # L = |a|
-    ah = a / L
-    gL = np.zeros(9)
-    gL[0:3] = ah
-    HL = np.zeros((9, 9))
-    HL[0:3, 0:3] = (I3 - np.outer(ah, ah)) / L
-    # y = -L p
-    gy = -(p * gL + L * gp)
-    Hy = -(np.outer(gL, gp) + np.outer(gp, gL) + p * HL + L * Hp)
-    # z = (a.c)(a.b) - |a|^2 (b.c)
-    gz[0:3] = c * ab + b * ac - 2.0 * a * bc
-    gz[3:6] = a * ac - c * L2
-    gz[6:9] = a * ab - b * L2
-    Hz[0:3, 0:3] = np.outer(c, b) + np.outer(b, c) - 2.0 * bc * I3
-    Hz[0:3, 3:6] = np.outer(c, a) + ac * I3 - 2.0 * np.outer(a, c)
-    Hz[3:6, 0:3] = Hz[0:3, 3:6].T
-    Hz[0:3, 6:9] = ab * I3 + np.outer(b, a) - 2.0 * np.outer(a, b)
-    Hz[6:9, 0:3] = Hz[0:3, 6:9].T
-    Hz[3:6, 6:9] = np.outer(a, a) - L2 * I3
-    Hz[6:9, 3:6] = Hz[3:6, 6:9].T
+        return 0.0, u, H, False
+    gy = np.empty(9)
+    gz = np.empty(9)
+    for i in range(3):
+        ah = a[i] / L
+        # y = -L p: dL/da = a/|a|, dp/d(a, b, c) = (b x c, c x a, a x b)
+        gy[i] = -(p * ah + L * bxc[i])
+        gy[3 + i] = -L * cxa[i]
+        gy[6 + i] = -L * axb[i]
+        # z = (a.c)(a.b) - |a|^2 (b.c)
+        gz[i] = c[i] * ab + b[i] * ac - 2.0 * a[i] * bc
+        gz[3 + i] = a[i] * ac - c[i] * L2
+        gz[6 + i] = a[i] * ab - b[i] * L2
+    inv = 1.0 / r2
+    for i in range(9):
+        u[i] = (z * gy[i] - y * gz[i]) * inv
+    # z Hy with Hy = -(gL gp^T + gp gL^T + p HL + L Hp); gL = (a/|a|, 0, 0), HL = (I - a a^T/|a|^2)/|a|
+    zL = z * L
+    _add_skew(H, 0, 3, c, zL)   # -L Hp blocks: Hp[a,b] = -[c]x, Hp[b,c] = -[a]x, Hp[c,a] = -[b]x
+    _add_skew(H, 3, 0, c, -zL)
+    _add_skew(H, 3, 6, a, zL)
+    _add_skew(H, 6, 3, a, -zL)
+    _add_skew(H, 6, 0, b, zL)
+    _add_skew(H, 0, 6, b, -zL)
+    for i in range(3):
+        ahi = a[i] / L
+        for j in range(3):
+            ahj = a[j] / L
+            # -z (gL gp^T + gp gL^T) restricted to the a-rows/columns, and -z p HL
+            H[i, j] -= z * (ahi * bxc[j] + bxc[i] * ahj + p * ((1.0 if i == j else 0.0) - ahi * ahj) / L)
+            H[i, 3 + j] -= z * ahi * cxa[j]
+            H[3 + j, i] -= z * ahi * cxa[j]
+            H[i, 6 + j] -= z * ahi * axb[j]
+            H[6 + j, i] -= z * ahi * axb[j]
+            # -y Hz
+            d = 1.0 if i == j else 0.0
+            H[i, j] -= y * (c[i] * b[j] + b[i] * c[j] - 2.0 * bc * d)
+            hab = c[i] * a[j] + ac * d - 2.0 * a[i] * c[j]
+            H[i, 3 + j] -= y * hab
+            H[3 + j, i] -= y * hab
+            hac = ab * d + b[i] * a[j] - 2.0 * a[i] * b[j]
+            H[i, 6 + j] -= y * hac
+            H[6 + j, i] -= y * hac
+            hbc = a[i] * a[j] - L2 * d
+            H[3 + i, 6 + j] -= y * hbc
+            H[6 + j, 3 + i] -= y * hbc
+    for i in range(9):
+        for j in range(9):
+            H[i, j] = (H[i, j] + gz[i] * gy[j] - gy[i] * gz[j] - u[i] * 2.0 * (y * gy[j] + z * gz[j])) * inv
+    for i in range(9):
+        for j in range(i + 1, 9):
+            m = 0.5 * (H[i, j] + H[j, i])
+            H[i, j] = m
+            H[j, i] = m
     theta = np.arctan2(y, z)
-    u = (z * gy - y * gz) / r2  # grad theta
-    # Hess theta = (z Hy - y Hz + gz gy^T - gy gz^T) / r2 - u (2 y gy + 2 z gz)^T / r2, symmetrised
-    H = (z * Hy - y * Hz + np.outer(gz, gy) - np.outer(gy, gz)) / r2 - np.outer(u, 2.0 * (y * gy + z * gz)) / r2
-    H = 0.5 * (H + H.T)
     return theta, u, H, True
 
 

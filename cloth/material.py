@@ -42,5 +42,6 @@ class Material:
 
     def lame(self) -> tuple[float, float]:
         """2D plane-stress Lamé parameters (mu, lambda) in N/m."""
-        y, nu = self.youngs_modulus, self.poisson_ratio
-        return y / (2.0 * (1.0 + nu)), y * nu / (1.0 - nu * nu)
+        from .membrane import lame_parameters
+
+        return lame_parameters(self.youngs_modulus, self.poisson_ratio)

@@ -28,7 +28,7 @@ def run_from_config(cfg: DictConfig, out_dir: Path) -> dict:
     recorder = None
     if cfg.output.rerun:
         from cloth.io.recorder import RerunRecorder
-        recorder = RerunRecorder(out_dir / "recording.rrd", app_id=f"cloth/{cfg.scene.name}")
+        recorder = RerunRecorder(out_dir / "recording.rrd", app_id=f"cloth_{cfg.scene.name}")
     return run(sim, n_frames, out_dir, recorder=recorder, obj_every=int(cfg.output.obj_every),
                progress=bool(cfg.output.progress))
 

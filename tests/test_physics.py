@@ -25,6 +25,8 @@ ROUNDOFF_M = 1e-9
 FORCE_BALANCE_REL = 1e-10
 # The contact projection leaves nodes at phi = thickness up to round-off in the distance.
 CONTACT_SLACK = 1e-9
+# Central differences of a function linear in v are exact up to round-off (~1e-10 relative).
+LINEAR_FD_TOL = 1e-8
 
 
 def test_free_fall_follows_g_t2_over_2():
@@ -136,3 +138,47 @@ def test_undeclared_effects_are_never_called(monkeypatch):
     sim = Simulation(build_scene("sheet_on_sphere", COTTON, resolution=6))
     sim.advance_frame()
     assert calls["contact"] == sim.scene.steps_per_frame
+
+
+def test_handles_follow_their_prescribed_motion_exactly():
+    from cloth.obstacles import Oscillate
+    from cloth.scene import Handle
+
+    mesh = grid_mesh(0.6, 0.6, 6, 6, origin=(0, 0, 1.0))
+    motion = Oscillate((0.2, 0.0, 0.1), 1.5)
+    left = np.arange(7) * 7  # the column of nodes at u = 0
+    start = mesh.node_x[left].copy()
+    scene = Scene("handle", mesh, COTTON, {"membrane", "bending", "gravity", "damping"}, frame_time=1 / 30,
+                  steps_per_frame=3, handles=[Handle(left, motion)])
+    sim = Simulation(scene)
+    for _ in range(10):
+        sim.advance_frame()
+        expected = start + motion.pose(sim.time)[1]
+        assert np.abs(sim.mesh.node_x[left] - expected).max() < ROUNDOFF_M
+    assert np.all(sim.mesh.node_pinned[left]) and np.all(np.isfinite(sim.mesh.node_x))
+
+
+def test_wind_drag_velocity_jacobian_matches_finite_differences():
+    from cloth.forces import _drag_elements
+
+    # the drag force is linear in the velocities, so central differences are exact up to round-off
+    rng = np.random.default_rng(2)
+    mesh = grid_mesh(1.0, 1.0, 2, 2)
+    x = mesh.node_x + 0.1 * rng.standard_normal(mesh.node_x.shape)
+    v = rng.standard_normal(mesh.node_x.shape)
+    wind, drag = np.array([3.0, 1.0, 0.5]), 0.7
+    F = mesh.n_faces
+    f0, J = np.empty((F, 9)), np.empty((F, 9, 9))
+    _drag_elements(x, v, mesh.face_nodes, wind, drag, f0, J)
+    step = 1e-6
+    for face in range(F):
+        fd = np.empty((9, 9))
+        for col in range(9):
+            vp, vm = v.copy(), v.copy()
+            vp[mesh.face_nodes[face, col // 3], col % 3] += step
+            vm[mesh.face_nodes[face, col // 3], col % 3] -= step
+            fp, fm, Jt = np.empty((F, 9)), np.empty((F, 9)), np.empty((F, 9, 9))
+            _drag_elements(x, vp, mesh.face_nodes, wind, drag, fp, Jt)
+            _drag_elements(x, vm, mesh.face_nodes, wind, drag, fm, Jt)
+            fd[:, col] = -(fp[face] - fm[face]) / (2 * step)  # J = -df/dv
+        assert np.abs(fd - J[face]).max() < LINEAR_FD_TOL * np.abs(J[face]).max()
