@@ -64,7 +64,7 @@ class Membrane(ForceTerm):
     def rebuild(self, mesh, pattern):
         self.slots = pattern.slots["faces"]
         F = mesh.n_faces
-        self.energy, self.grad, self.hess = np.empty(F), np.empty((F, 9)), np.empty((F, 9, 9))
+        self.energy, self.grad, self.hess = np.zeros(F), np.zeros((F, 9)), np.empty((F, 9, 9))
 
     def accumulate(self, mesh, t, acc):
         membrane_elements(mesh.node_x, mesh.face_nodes, mesh.face_Dm_inv, mesh.face_area,
@@ -93,7 +93,7 @@ class Bending(ForceTerm):
             hinge_weight(mesh.edge_rest_length[idx], mesh.face_area[fa], mesh.face_area[fb], self.k_bend))
         self.rest_theta = np.ascontiguousarray(mesh.edge_rest_theta[idx])
         E = idx.size
-        self.energy, self.grad, self.hess = np.empty(E), np.empty((E, 12)), np.empty((E, 12, 12))
+        self.energy, self.grad, self.hess = np.zeros(E), np.zeros((E, 12)), np.empty((E, 12, 12))
 
     def accumulate(self, mesh, t, acc):
         bending_elements(mesh.node_x, self.stencil, self.rest_theta, self.weight, self.project,

@@ -15,10 +15,9 @@ The three modes share all of this; only the remesh stage (its sizing field) diff
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
-
 import numpy as np
 
+from .adaptive import REMESH_RECORD
 from .assembly import SparsityPattern
 from .forces import Bending, ForceTerm, Gravity, Membrane, Wind, element_families
 from .integrator import implicit_euler_step
@@ -49,16 +48,15 @@ def build_force_terms(scene: Scene) -> list[ForceTerm]:
     return terms
 
 
-@dataclass
 class Remesher:
-    """Interface of the remesh stage (the adaptive-remeshing issue implements it).
+    """Interface of the remesh stage (cloth.adaptive.AdaptiveRemesher implements it).
 
-    `remesh(sim)` may change `sim.scene.mesh`; it returns True when the topology or the
-    material coordinates changed, so that the simulation rebuilds masses, rest data and the
-    solver's sparsity pattern (and only then). It fills `timings` with 'sizing' and 'remesh'.
+    `remesh(sim, timings, stats)` may replace `sim.scene.mesh`; when it does, it calls
+    `sim.rebuild()` (masses, rest data, sparsity: only then) and returns True. It adds its
+    wall time to timings['sizing'] and timings['remesh'] and its counters to `stats`.
     """
 
-    def remesh(self, sim: "Simulation", timings: dict) -> bool:  # pragma: no cover - interface
+    def remesh(self, sim: "Simulation", timings: dict, stats: dict) -> bool:  # pragma: no cover - interface
         raise NotImplementedError
 
 
@@ -149,9 +147,9 @@ class Simulation:
         t_start = time.perf_counter()
         timings = {p: 0.0 for p in PHASES}
         stats = {"solver_iterations": 0, "solver_iterations_max": 0, "solver_residual": 0.0, "contacts": 0}
+        stats.update(REMESH_RECORD)
         if self.remesher is not None:
-            if self.remesher.remesh(self, timings):
-                self.rebuild()
+            self.remesher.remesh(self, timings, stats)
         for _ in range(self.scene.steps_per_frame):
             self.step(timings, stats)
         self.frame += 1

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 from omegaconf import DictConfig, OmegaConf
 
-IMPLEMENTED_MODES = ("nonadaptive",)
+IMPLEMENTED_MODES = ("nonadaptive", "adaptive")
+REMESHING_MODES = ("adaptive",)
 
 
 class ConfigError(ValueError):
@@ -32,6 +33,37 @@ def build_material(cfg: DictConfig):
         raise ConfigError(f"material.{exc.key}: {exc}") from None
 
 
+def _params(cls, values: dict, key: str):
+    try:
+        return cls(**values)
+    except TypeError as exc:  # an unknown key
+        raise ConfigError(f"{key}: {exc}") from None
+    except ValueError as exc:
+        raise ConfigError(f"{key}.{exc}") from None
+
+
+def build_remesher(mode_cfg: DictConfig, sizing_overrides: dict):
+    """The remesh stage of a remeshing mode (ConfigError names a bad mode.* key)."""
+    from cloth.adaptive import AdaptiveRemesher
+    from cloth.popfilter import PopFilterParams
+    from cloth.remesh import RemeshParams
+    from cloth.sizing import SizingParams
+
+    sizing = dict(OmegaConf.to_container(mode_cfg.sizing, resolve=True))
+    sizing.update(sizing_overrides)
+    remesh = OmegaConf.to_container(mode_cfg.remesh, resolve=True)
+    pop = mode_cfg.get("pop_filter")
+    every = mode_cfg.get("every", 1)
+    _require(isinstance(every, int) and every >= 1, "mode.every", f"must be an integer >= 1, got {every!r}")
+    return AdaptiveRemesher(
+        sizing=_params(SizingParams, sizing, "mode.sizing"),
+        params=_params(RemeshParams, remesh, "mode.remesh"),
+        pop=None if pop is None else _params(PopFilterParams, OmegaConf.to_container(pop, resolve=True),
+                                             "mode.pop_filter"),
+        every=every,
+    )
+
+
 def build_simulation(cfg: DictConfig):
     """Return (Simulation, n_frames); raises ConfigError naming the key of a bad value."""
     from cloth.linsolve import SolverOptions
@@ -52,6 +84,7 @@ def build_simulation(cfg: DictConfig):
     _require(cfg.scale in scales, "scale", f"scene {name!r} has no scale {cfg.scale!r}; available: {sorted(scales)}")
     params = dict(OmegaConf.to_container(cfg.scene.params, resolve=True))
     params.update(OmegaConf.to_container(scales[cfg.scale], resolve=True))
+    sizing_overrides = params.pop("sizing", None) or {}
     for key in ("frame_time", "steps_per_frame", "resolution"):
         if key in params:
             v = params[key]
@@ -67,8 +100,9 @@ def build_simulation(cfg: DictConfig):
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     _require(int(cfg.output.obj_every) >= 0, "output.obj_every", f"must be >= 0, got {cfg.output.obj_every}")
+    remesher = build_remesher(cfg.mode, sizing_overrides) if mode in REMESHING_MODES else None
     try:
         scene = build_scene(name, material, **params)
     except (SceneError, MeshError) as exc:
         raise ConfigError(f"scene: {exc}") from None
-    return Simulation(scene, solver=solver, max_speed=float(cfg.max_speed)), int(cfg.frames)
+    return Simulation(scene, solver=solver, remesher=remesher, max_speed=float(cfg.max_speed)), int(cfg.frames)

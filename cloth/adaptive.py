@@ -1,0 +1,121 @@
+"""The remesh stage of the frame loop (mode=adaptive; mode=viewdep changes only `face_sizing`).
+
+Once every `every` frames, before the frame's steps:
+
+    sizing field per face  ->  area-weighted transfer to verts  ->  remesh (cloth.remesh)
+    ->  rebuild masses, rest data, sparsity (Simulation.rebuild)  ->  pop filter
+
+The first remesh (frame 0) refines or coarsens the input mesh to its sizing and runs no pop
+filter: the cloth has no history to keep.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .popfilter import PopFilterParams, internal_forces, pop_filter
+from .remesh import RemeshParams, remesh
+from .sizing import SizingParams, face_to_vert_sizing, physics_face_sizing
+
+INTERNAL_TERMS = ("membrane", "bending")
+# Per-frame record columns this stage fills (NaN or 0 in frames without a remesh, and in mode=nonadaptive).
+REMESH_RECORD = {"remeshed": 0, "remesh_splits": 0, "remesh_collapses": 0, "remesh_flips": 0,
+                 "pop_energy_before_j": float("nan"), "pop_energy_after_j": float("nan"),
+                 "pop_iterations": 0}
+
+
+def restore_momentum(mesh, momentum: np.ndarray) -> None:
+    """Give the free nodes the uniform velocity change that restores the linear momentum.
+
+    Splits conserve momentum exactly (a new node takes its edge's mean velocity and the lumped
+    masses redistribute symmetrically); a collapse drops its node's momentum. Of all velocity
+    corrections that restore sum(m v), a uniform one has the least kinetic energy.
+    """
+    free = ~mesh.node_pinned
+    m_free = float(mesh.node_m[free].sum())
+    if m_free > 0:
+        mesh.node_v[free] += (momentum - mesh.node_m @ mesh.node_v) / m_free
+
+
+def changed_faces(old, new, node_origin: np.ndarray) -> np.ndarray:
+    """(new.n_faces,) bool: faces of `new` that were not faces of `old` (by their nodes).
+
+    `node_origin` gives, per node of `new`, its node in `old` or -1 for a node the remesh made.
+    """
+    fo = node_origin[new.face_nodes]
+    changed = (fo < 0).any(axis=1)
+    n = np.int64(old.n_nodes)
+    def key(t):
+        t = np.sort(t.astype(np.int64), axis=1)
+        return (t[:, 0] * n + t[:, 1]) * n + t[:, 2]
+    changed |= ~np.isin(key(np.maximum(fo, 0)), key(old.face_nodes))
+    return changed
+
+
+@dataclass
+class AdaptiveRemesher:
+    sizing: SizingParams = field(default_factory=SizingParams)
+    params: RemeshParams = field(default_factory=RemeshParams)
+    pop: PopFilterParams | None = field(default_factory=PopFilterParams)
+    every: int = 1  # remesh once every this many frames
+
+    def __post_init__(self):
+        if int(self.every) < 1:
+            raise ValueError(f"remesh every must be >= 1 frame, got {self.every}")
+
+    # the one method a sizing variant overrides (mode=viewdep)
+    def face_sizing(self, sim) -> np.ndarray:
+        obstacles = sim.obstacle_set if sim.contact is not None else None
+        return physics_face_sizing(sim.mesh, self.sizing, obstacles)
+
+    def remesh(self, sim, timings: dict, stats: dict) -> bool:
+        """Remesh `sim` if this frame is due; True when the mesh changed."""
+        if sim.frame % int(self.every) != 0:
+            return False
+        mesh = sim.mesh
+        t0 = time.perf_counter()
+        vert_M = face_to_vert_sizing(mesh, self.face_sizing(sim))
+        t1 = time.perf_counter()
+        timings["sizing"] += t1 - t0
+        initial = sim.frame == 0
+        internal = [t for t in sim.terms if t.name in INTERNAL_TERMS]
+        use_pop = self.pop is not None and not initial and bool(internal) and self.pop.iterations > 0
+        # per-node data a split averages: x, v, internal force per unit mass, handle anchor
+        handle_id = np.full(mesh.n_nodes, -1, dtype=np.int64)
+        anchor = np.zeros((mesh.n_nodes, 3))
+        for i, h in enumerate(sim.scene.handles):
+            handle_id[h.nodes] = i
+            anchor[h.nodes] = h.local
+        static = mesh.node_pinned & (handle_id < 0)
+        handle_id[static] = len(sim.scene.handles)  # pinned without a handle: a group of its own
+        a_int = np.zeros((mesh.n_nodes, 3))
+        if use_pop:  # internal forces of the old mesh, per unit mass, carried onto the new nodes
+            a_int = internal_forces(mesh, internal, sim.pattern).force / mesh.node_m[:, None]
+        momentum = mesh.node_m @ mesh.node_v
+        data = np.hstack([mesh.node_x, mesh.node_v, a_int, anchor])
+        result = remesh(mesh, vert_M, data, handle_id, self.params)
+        stats.update(remeshed=1, remesh_splits=result.splits, remesh_collapses=result.collapses,
+                     remesh_flips=result.flips)
+        if not result.changed:
+            timings["remesh"] += time.perf_counter() - t1
+            return False
+        new = result.mesh
+        nd = result.node_data
+        sim.scene.mesh = new
+        for i, h in enumerate(sim.scene.handles):
+            sel = np.flatnonzero(result.node_handle == i)
+            h.nodes = sel
+            h.local = np.ascontiguousarray(nd[sel, 9:12])
+        sim.rebuild()
+        restore_momentum(new, momentum)
+        if use_pop:
+            target = nd[:, 6:9] * new.node_m[:, None]
+            out = pop_filter(new, internal, changed_faces(mesh, new, result.node_origin), target, self.pop,
+                             sim.solver)
+            stats.update(pop_energy_before_j=out["energy_before_j"], pop_energy_after_j=out["energy_after_j"],
+                         pop_iterations=out["iterations"])
+        timings["remesh"] += time.perf_counter() - t1
+        return True
