@@ -58,6 +58,11 @@ class RemeshParams:
     corner_angle: float = 0.5  # rad: boundary verts where the boundary turns more than this are kept
     max_split_rounds: int = 64  # bound on split passes (each pass splits every invalid edge once)
     max_collapse_rounds: int = 64  # bound on collapse passes
+    # World-space guard (not in ARCSim): a flip or collapse may not leave a face whose principal
+    # squared stretch differs from 1 by more than this, unless the faces it replaces already did.
+    # Material-space operations in a folded region can otherwise crease the surface and compress
+    # a face past the StVK softening point (stretch 1/sqrt(3)), where the implicit step blows up.
+    max_world_strain: float = 0.2
 
 
 # ---------------------------------------------------------------------------------------
@@ -89,6 +94,32 @@ def _aspect(vu, a, b, c):
     if p <= 0.0:
         return 0.0
     return 12.0 * math.sqrt(3.0) * area / (p * p)
+
+
+@nb.njit(cache=True)
+def _world_strain(vu, vnode, nd, p0, p1, p2):
+    """Largest |lambda - 1| of the right Cauchy-Green tensor C = F^T F of the triangle (p0, p1, p2)
+    with world positions from node data columns 0:3 (1 for a face with no world area)."""
+    u1x, u1y = vu[p1, 0] - vu[p0, 0], vu[p1, 1] - vu[p0, 1]
+    u2x, u2y = vu[p2, 0] - vu[p0, 0], vu[p2, 1] - vu[p0, 1]
+    det = u1x * u2y - u1y * u2x
+    if det <= 0.0:
+        return np.inf
+    n0, n1, n2 = vnode[p0], vnode[p1], vnode[p2]
+    c00 = 0.0
+    c01 = 0.0
+    c11 = 0.0
+    for k in range(3):
+        x1 = nd[n1, k] - nd[n0, k]
+        x2 = nd[n2, k] - nd[n0, k]
+        f0 = (x1 * u2y - x2 * u1y) / det
+        f1 = (x2 * u1x - x1 * u2x) / det
+        c00 += f0 * f0
+        c01 += f0 * f1
+        c11 += f1 * f1
+    mid = 0.5 * (c00 + c11)
+    rad = math.sqrt(0.25 * (c00 - c11) ** 2 + c01 * c01)
+    return max(abs(mid + rad - 1.0), abs(mid - rad - 1.0))
 
 
 @nb.njit(cache=True)
@@ -257,7 +288,19 @@ def _flip(fv, fadj, vu, vface, h):
 
 
 @nb.njit(cache=True)
-def _flip_pass(fv, fadj, ftw, falive, vu, vM, vface, stack, n_stack, threshold, max_flips, fdirty):
+def _flip_keeps_world_strain(fv, vu, vnode, nd, f, k, g, l, max_strain):
+    """A flip may not make a face more strained in world space than max(max_strain, the worse of
+    the two faces it replaces): in a folded region a material-space flip can crease the surface."""
+    a, b, c = fv[f, k], fv[f, (k + 1) % 3], fv[f, (k + 2) % 3]
+    d = fv[g, (l + 2) % 3]
+    old = max(_world_strain(vu, vnode, nd, a, b, c), _world_strain(vu, vnode, nd, b, a, d))
+    new = max(_world_strain(vu, vnode, nd, a, d, c), _world_strain(vu, vnode, nd, d, b, c))
+    return new <= max(max_strain, old)
+
+
+@nb.njit(cache=True)
+def _flip_pass(fv, fadj, ftw, falive, vu, vM, vface, vnode, nd, max_strain, stack, n_stack, threshold, max_flips,
+               fdirty):
     """Lawson flipping from the half-edges on `stack`; returns the number of flips."""
     flips = 0
     while n_stack > 0 and flips < max_flips:
@@ -269,6 +312,8 @@ def _flip_pass(fv, fadj, ftw, falive, vu, vM, vface, stack, n_stack, threshold, 
         if not _should_flip(fv, fadj, vu, vM, h, threshold):
             continue
         g = fadj[f, k] // 3
+        if not _flip_keeps_world_strain(fv, vu, vnode, nd, f, k, g, fadj[f, k] % 3, max_strain):
+            continue
         # boundary sides of f and g may be seam sides whose twin codes change with the flip
         tw_f = (ftw[f, 0], ftw[f, 1], ftw[f, 2])
         tw_g = (ftw[g, 0], ftw[g, 1], ftw[g, 2])
@@ -447,7 +492,7 @@ def _canonical(fadj, ftw, h):
 
 @nb.njit(cache=True)
 def split_pass(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, nd, npin, nnv, nalive, cnt, fdirty,
-               threshold, max_rounds):
+               threshold, max_rounds, max_strain):
     """Split every invalid edge, worst first, flipping around each split; repeat until none is invalid.
 
     Returns (status, splits, flips); status OUT_OF_CAPACITY asks the driver to grow and call again.
@@ -495,8 +540,8 @@ def split_pass(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, nd, npin, nn
             n_stack = _split(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, nd, npin, nnv, nalive,
                              h, cnt, fdirty, stack)
             splits += 1
-            flips += _flip_pass(fv, fadj, ftw, falive, vu, vM, vface, stack, n_stack, threshold,
-                                64, fdirty)
+            flips += _flip_pass(fv, fadj, ftw, falive, vu, vM, vface, vnode, nd, max_strain, stack, n_stack,
+                                threshold, 64, fdirty)
     return 0, splits, flips
 
 
@@ -504,7 +549,7 @@ def split_pass(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, nd, npin, nn
 # collapses
 @nb.njit(cache=True)
 def _try_collapse(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv, nalive, h, a_first,
-                  aspect_min, max_s2, cos_corner, buf, buf2, fdirty):
+                  aspect_min, max_s2, cos_corner, buf, buf2, fdirty, nd, max_strain):
     """Collapse the edge of half-edge h, removing its first vert (a_first) or its second; True on success."""
     f, k = h // 3, h % 3
     if a_first:
@@ -559,7 +604,12 @@ def _try_collapse(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv
                         break
                 if not ok:
                     return False
-    # new faces: quality, orientation and the size of every new edge at b
+    # new faces: quality, orientation, world strain and the size of every new edge at b
+    old_strain = 0.0
+    for i in range(n):
+        fa = buf[i]
+        old_strain = max(old_strain, _world_strain(vu, vnode, nd, fv[fa, 0], fv[fa, 1], fv[fa, 2]))
+    strain_limit = max(max_strain, old_strain)
     n_keep = 0
     for i in range(n):
         fa = buf[i]
@@ -571,6 +621,8 @@ def _try_collapse(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv
         p2 = b if fv[fa, 2] == a else fv[fa, 2]
         if _aspect(vu, p0, p1, p2) < aspect_min:
             return False
+        if _world_strain(vu, vnode, nd, p0, p1, p2) > strain_limit:
+            return False  # the world surface would crease or stretch more than it already is
         for x in (p0, p1, p2):
             if x != b and _edge_s2(vu, vM, b, x) > max_s2:
                 return False
@@ -633,7 +685,7 @@ def _try_collapse(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv
 
 @nb.njit(cache=True)
 def collapse_pass(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv, nalive, cnt, fdirty,
-                  aspect_min, max_size, cos_corner, threshold, max_rounds):
+                  aspect_min, max_size, cos_corner, threshold, max_rounds, nd, max_strain):
     """Collapse short edges of dirty faces (shortest first), flipping after each; returns (collapses, flips)."""
     buf = np.empty(RING_MAX, dtype=np.int64)
     buf2 = np.empty(RING_MAX, dtype=np.int64)
@@ -674,10 +726,11 @@ def collapse_pass(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv
                 continue
             first = fv[h // 3, h % 3] == a
             ok = _try_collapse(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv, nalive, h,
-                               first, aspect_min, max_s2, cos_corner, buf, buf2, fdirty)
+                               first, aspect_min, max_s2, cos_corner, buf, buf2, fdirty, nd, max_strain)
             if not ok:
                 ok = _try_collapse(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv, nalive,
-                                   h, not first, aspect_min, max_s2, cos_corner, buf, buf2, fdirty)
+                                   h, not first, aspect_min, max_s2, cos_corner, buf, buf2, fdirty, nd,
+                                   max_strain)
             if not ok:
                 continue
             done += 1
@@ -690,7 +743,8 @@ def collapse_pass(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv
                     if n_stack < stack.shape[0]:
                         stack[n_stack] = 3 * buf[i] + s
                         n_stack += 1
-            flips += _flip_pass(fv, fadj, ftw, falive, vu, vM, vface, stack, n_stack, threshold, 256, fdirty)
+            flips += _flip_pass(fv, fadj, ftw, falive, vu, vM, vface, vnode, nd, max_strain, stack, n_stack,
+                                threshold, 256, fdirty)
         collapses += done
         if done == 0:
             break
@@ -698,7 +752,7 @@ def collapse_pass(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv
 
 
 @nb.njit(cache=True)
-def flip_all(fv, fadj, ftw, falive, vu, vM, vface, cnt, fdirty, threshold):
+def flip_all(fv, fadj, ftw, falive, vu, vM, vface, vnode, nd, max_strain, cnt, fdirty, threshold):
     """Lawson flipping from every edge (bounded); returns the number of flips."""
     nf = cnt[0]
     stack = np.empty(3 * nf + 4096, dtype=np.int64)
@@ -708,7 +762,8 @@ def flip_all(fv, fadj, ftw, falive, vu, vM, vface, cnt, fdirty, threshold):
             for k in range(2, -1, -1):
                 stack[n] = 3 * f + k
                 n += 1
-    return _flip_pass(fv, fadj, ftw, falive, vu, vM, vface, stack, n, threshold, 3 * nf + 64, fdirty)
+    return _flip_pass(fv, fadj, ftw, falive, vu, vM, vface, vnode, nd, max_strain, stack, n, threshold,
+                      3 * nf + 64, fdirty)
 
 
 # ---------------------------------------------------------------------------------------
@@ -837,11 +892,12 @@ def remesh(mesh: Mesh, vert_M: np.ndarray, node_data: np.ndarray, node_handle: n
         raise ValueError(f"node_data must have shape ({mesh.n_nodes}, >= 6), got {node_data.shape}")
     w = _Work(mesh, vert_M, np.asarray(node_data, dtype=np.float64), np.asarray(node_handle, dtype=np.int64))
     thr = params.flip_threshold
-    flips = flip_all(w.fv, w.fadj, w.ftw, w.falive, w.vu, w.vM, w.vface, w.cnt, w.fdirty, thr)
+    ms = params.max_world_strain
+    flips = flip_all(w.fv, w.fadj, w.ftw, w.falive, w.vu, w.vM, w.vface, w.vnode, w.nd, ms, w.cnt, w.fdirty, thr)
     splits = 0
     while True:
         status, s, fl = split_pass(w.fv, w.fadj, w.ftw, w.falive, w.vu, w.vM, w.vnode, w.vface, w.valive,
-                                   w.nd, w.npin, w.nnv, w.nalive, w.cnt, w.fdirty, thr, params.max_split_rounds)
+                                   w.nd, w.npin, w.nnv, w.nalive, w.cnt, w.fdirty, thr, params.max_split_rounds, ms)
         splits += s
         flips += fl
         if status == OUT_OF_CAPACITY:
@@ -852,7 +908,7 @@ def remesh(mesh: Mesh, vert_M: np.ndarray, node_data: np.ndarray, node_handle: n
     collapses, fl = collapse_pass(w.fv, w.fadj, w.ftw, w.falive, w.vu, w.vM, w.vnode, w.vface, w.valive,
                                   w.npin, w.nnv, w.nalive, w.cnt, w.fdirty, params.aspect_min,
                                   params.collapse_max_size, math.cos(params.corner_angle), thr,
-                                  params.max_collapse_rounds)
+                                  params.max_collapse_rounds, w.nd, ms)
     flips += fl
     out, nd, nh, origin, vM = w.to_mesh(mesh.density)
     return RemeshResult(mesh=out, node_data=nd, node_handle=nh, node_origin=origin, vert_M=vM, splits=int(splits),

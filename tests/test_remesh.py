@@ -141,7 +141,7 @@ def test_random_operation_sequences_keep_every_invariant(seed, make):
         else:
             ok = rm._try_collapse(w.fv, w.fadj, w.ftw, w.falive, w.vu, w.vM, w.vnode, w.vface, w.valive,
                                   w.npin, w.nnv, w.nalive, h, bool(rng.integers(2)), 0.05, 4.0,
-                                  math.cos(0.5), buf, buf2, w.fdirty)
+                                  math.cos(0.5), buf, buf2, w.fdirty, w.nd, np.inf)
         done[op] += bool(ok)
         out = check_work(w)
         assert out.face_area.sum() == pytest.approx(area0, rel=1e-12), f"material area changed by a {op}"

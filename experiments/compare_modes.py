@@ -1,0 +1,90 @@
+"""Measure nonadaptive against adaptive on the same scene, in one run (issue: adaptive remeshing, item 7).
+
+    python -m experiments.compare_modes [--scenes sheet_on_sphere flag] [--frames 60] [--scale small]
+
+The nonadaptive mesh of each scale preset has the edge length of the adaptive's finest edge
+(scene.scales.<scale>.sizing.size_min). Writes results/compare_modes/<timestamp>/frames.parquet
+(every frame of every run) and table.csv / table.md (faces and time per frame, min/max/mean,
+speed-up of adaptive over nonadaptive, share of frame time per phase) and prints the table.
+"""
+
+from __future__ import annotations
+
+import argparse
+from datetime import datetime
+from pathlib import Path
+
+import pandas as pd
+from hydra import compose, initialize_config_dir
+
+from cloth.io.manifest import environment_manifest, write_json_atomic, write_text_atomic
+from experiments.build import build_simulation
+
+CONF = str(Path(__file__).resolve().parents[1] / "conf")
+PHASE_SHARES = {"sizing": ["time_sizing_s"], "remesh": ["time_remesh_s"],
+                "physics": ["time_physics_s", "time_solve_s"], "collisions": ["time_collisions_s"]}
+
+
+def run(scene: str, mode: str, frames: int, scale: str) -> pd.DataFrame:
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        cfg = compose(config_name="config", overrides=[f"scene={scene}", f"mode={mode}", f"scale={scale}"])
+    sim = build_simulation(cfg)[0]
+    rows = [sim.advance_frame() for _ in range(frames)]
+    df = pd.DataFrame(rows)
+    df["scene"], df["mode"] = scene, mode
+    return df
+
+
+def table(frames: pd.DataFrame) -> pd.DataFrame:
+    out = []
+    for (scene, mode), d in frames.groupby(["scene", "mode"], sort=False):
+        row = {"scene": scene, "mode": mode,
+               "faces_min": d.faces.min(), "faces_max": d.faces.max(), "faces_mean": d.faces.mean(),
+               "s_per_frame_min": d.wall_s.min(), "s_per_frame_max": d.wall_s.max(),
+               "s_per_frame_mean": d.wall_s.mean()}
+        for phase, cols in PHASE_SHARES.items():
+            row[f"share_{phase}"] = d[cols].sum(axis=1).sum() / d.wall_s.sum()
+        out.append(row)
+    t = pd.DataFrame(out)
+    base = t[t["mode"] == "nonadaptive"].set_index("scene")["s_per_frame_mean"]
+    t["speedup_vs_nonadaptive"] = base.reindex(t["scene"]).to_numpy() / t["s_per_frame_mean"]
+    return t
+
+
+def markdown(t: pd.DataFrame) -> str:
+    """A Markdown table (3 significant digits) without extra dependencies."""
+    fmt = lambda v: f"{v:.3g}" if isinstance(v, float) else str(v)  # noqa: E731
+    lines = ["| " + " | ".join(t.columns) + " |", "|" + "---|" * len(t.columns)]
+    lines += ["| " + " | ".join(fmt(v) for v in row) + " |" for row in t.itertuples(index=False)]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scenes", nargs="+", default=["sheet_on_sphere", "flag"])
+    ap.add_argument("--frames", type=int, default=60)
+    ap.add_argument("--scale", default="small")
+    ap.add_argument("--warmup", type=int, default=1, help="frames excluded from the table (compilation)")
+    args = ap.parse_args(argv)
+    if args.frames <= args.warmup:
+        ap.error(f"--frames ({args.frames}) must exceed --warmup ({args.warmup})")
+    out_dir = Path("results/compare_modes") / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out_dir / "manifest.json", environment_manifest(0))
+    runs = []
+    for scene in args.scenes:
+        for mode in ("nonadaptive", "adaptive"):
+            df = run(scene, mode, args.frames, args.scale)
+            runs.append(df)
+            print(f"{scene:16s} {mode:12s} done: {df.faces.mean():8.0f} faces, {df.wall_s.iloc[args.warmup:].mean():.3f} s/frame")
+    frames = pd.concat(runs, ignore_index=True)
+    frames.to_parquet(out_dir / "frames.parquet")
+    t = table(frames[frames["frame"] > args.warmup])
+    write_text_atomic(out_dir / "table.csv", t.to_csv(index=False))
+    write_text_atomic(out_dir / "table.md", markdown(t))
+    print(markdown(t))
+    print(f"results in {out_dir}")
+
+
+if __name__ == "__main__":
+    main()
