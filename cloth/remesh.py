@@ -855,9 +855,6 @@ class _Work:
         self.vface, self.valive = g(self.vface, 0), g(self.valive, False)
         self.nd, self.npin, self.nnv, self.nalive = g(self.nd, 0.0), g(self.npin, -1), g(self.nnv, 0), g(self.nalive, False)
 
-    def face_args(self):
-        return (self.fv, self.fadj, self.ftw, self.falive)
-
     def to_mesh(self, density: float, x_cols=slice(0, 3), v_cols=slice(3, 6)):
         """Compact the live elements into a new Mesh; returns (mesh, node_data, node_handle, node_origin, vert_M)."""
         nF, nV, nN = self.cnt

@@ -128,14 +128,18 @@ def velocity_sizing(mesh: Mesh, refine_velocity: float) -> np.ndarray:
 
 
 def compression_sizing(mesh: Mesh, refine_compression: float, E: np.ndarray | None = None) -> np.ndarray:
-    """Resolution needed to represent buckling under compression.
+    """Resolution needed to represent buckling under compression (ARCSim's compression metric).
 
-    With e = F^T F - I = 2E (E the Green strain) and the normal-derivative metric
-    S2 = N^T N, M_comp = pos(-e + sqrt(e^T e - 4 c^2 adj(S2))) / (2 c^2), c = refine_compression:
-    an edge direction u compressed by a factor (1 - c u^T...) so that the chord of a buckle of
-    wavelength |u| and amplitude c|u| shortens it by the observed compression gets size 1; pos
-    keeps the compressed directions only. (The curvature already resolved by S2 reduces the
-    demand, hence the adjugate term.)
+    With e = F^T F - I = 2E (E the Green strain, eq 9), the normal-derivative metric
+    S2 = N^T N and c = refine_compression,
+
+        M_comp = pos(-e + sqrt(e^T e - 4 c^2 adj(S2))) / (2 c^2),
+
+    where sqrt acts on eigenvalues (keeping their sign) and pos keeps the non-negative ones.
+    For a flat face compressed along one direction (e = diag(-eps, 0), S2 = 0) it is
+    diag(eps / c^2, 0): edges of length c / sqrt(eps) along the compression, so that the
+    compression the mesh cannot show as buckles stays below c per edge; the curvature the mesh
+    already resolves (S2) lowers the demand. Stretched directions ask for nothing.
     """
     if E is None:
         E = face_green_strain(mesh.node_x, mesh.face_nodes, mesh.face_Dm_inv)
