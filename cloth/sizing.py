@@ -192,6 +192,14 @@ def _encloses(cx, cy, r, dx, dy, dr):
 
 
 @nb.njit(cache=True)
+def _encloses_all(px, py, r, cx, cy, rr):
+    for k in range(cx.shape[0]):
+        if not _encloses(px, py, r, cx[k], cy[k], rr[k]):
+            return False
+    return True
+
+
+@nb.njit(cache=True)
 def _tensor_max_one(Ms, out):
     """The smallest-trace symmetric M with M >= M_k for all k (Loewner order), M_k 2x2 symmetric.
 
@@ -211,12 +219,7 @@ def _tensor_max_one(Ms, out):
     bx = 0.0
     by = 0.0
     for i in range(K):  # one disk
-        ok = True
-        for k in range(K):
-            if not _encloses(cx[i], cy[i], rr[i], cx[k], cy[k], rr[k]):
-                ok = False
-                break
-        if ok and rr[i] < best_r:
+        if rr[i] < best_r and _encloses_all(cx[i], cy[i], rr[i], cx, cy, rr):
             best_r, bx, by = rr[i], cx[i], cy[i]
     for i in range(K):  # two disks tangent inside
         for j in range(i + 1, K):
@@ -229,12 +232,7 @@ def _tensor_max_one(Ms, out):
             py = cy[i] + t * (cy[j] - cy[i])
             if r >= best_r:
                 continue
-            ok = True
-            for k in range(K):
-                if not _encloses(px, py, r, cx[k], cy[k], rr[k]):
-                    ok = False
-                    break
-            if ok:
+            if _encloses_all(px, py, r, cx, cy, rr):
                 best_r, bx, by = r, px, py
     for i in range(K):  # three disks tangent inside: |c - c_k| = R - r_k
         for j in range(i + 1, K):
@@ -277,12 +275,7 @@ def _tensor_max_one(Ms, out):
                     if R < max(rr[i], rr[j], rr[l]) or R >= best_r:
                         continue
                     px, py = Px + Qx * R, Py + Qy * R
-                    ok = True
-                    for k in range(K):
-                        if not _encloses(px, py, R, cx[k], cy[k], rr[k]):
-                            ok = False
-                            break
-                    if ok:
+                    if _encloses_all(px, py, R, cx, cy, rr):
                         best_r, bx, by = R, px, py
     out[0, 0] = best_r + bx
     out[1, 1] = best_r - bx
