@@ -20,12 +20,15 @@ import numpy as np
 from .adaptive import REMESH_RECORD
 from .assembly import SparsityPattern
 from .forces import Bending, ForceTerm, Gravity, Membrane, Wind, element_families
-from .integrator import implicit_euler_step
+from .integrator import ContactConstraints, implicit_euler_step
 from .linsolve import SolverOptions
 from .scene import Scene
 
 # Phases timed in every frame record (seconds of wall time, column time_<phase>_s).
 PHASES = ("sizing", "remesh", "physics", "solve", "collisions", "io", "other")
+# A free node within (1 + CONTACT_BAND) x thickness of an obstacle at the start of a step is a
+# contact candidate for the solve (projection leaves resting nodes at exactly the thickness).
+CONTACT_BAND = 0.5
 
 
 class SimulationDiverged(RuntimeError):
@@ -106,14 +109,28 @@ class Simulation:
             x[handle.nodes] = handle.targets(t)
         return x
 
+    def _contact_constraints(self) -> ContactConstraints | None:
+        """Free nodes near an obstacle now, with the nearest obstacle's normal and velocity."""
+        mesh, scene = self.scene.mesh, self.scene
+        free = np.flatnonzero(~mesh.node_pinned)
+        phi, normal, vel = self.obstacle_set.query(mesh.node_x[free])
+        near = np.flatnonzero(phi < scene.thickness * (1.0 + CONTACT_BAND))
+        return ContactConstraints(free[near], np.ascontiguousarray(normal[near]),
+                                  np.ascontiguousarray(vel[near]), scene.friction)
+
     def step(self, timings: dict, stats: dict) -> None:
         scene, mesh, h = self.scene, self.scene.mesh, self.scene.dt
         m = scene.material
+        contacts = None
+        if self.contact is not None:
+            t0 = time.perf_counter()
+            contacts = self._contact_constraints()
+            timings["collisions"] += time.perf_counter() - t0
         s, self.last_dv = implicit_euler_step(
             mesh, self.terms, self.pattern, h, self.time,
             m.damping_mass if self.damping else 0.0,
             m.damping_stiffness if self.damping else 0.0,
-            self._fixed_targets(self.time + h), self.solver, self.last_dv,
+            self._fixed_targets(self.time + h), self.solver, self.last_dv, contacts,
         )
         self.time += h
         timings["physics"] += s.time_physics_s

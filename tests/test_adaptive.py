@@ -110,12 +110,15 @@ def test_remeshing_a_resting_draped_sheet_makes_no_pop(draped):
     assert rec["kinetic_energy_j"] - ke0 < POP_KE_BOUND_J
 
 
-@pytest.mark.parametrize("scene", ["flag"])
-def test_long_adaptive_runs_stay_finite_and_outside_obstacles(scene):
-    # coarse sizing keeps this under a minute; 200 frames as the issue asks. sheet_on_sphere is not
-    # listed: in mode=adaptive it diverges after ~125-145 frames (faces compressed past the StVK
-    # softening point under repeated remeshing of the resting drape); see the open issue.
-    sim = _sim(f"scene={scene}", "scene.scales.small.sizing.size_min=0.08", "scene.scales.small.resolution=12")
+@pytest.mark.parametrize("scene, overrides", [
+    # the flag with coarse sizing keeps this short; sheet_on_sphere at its small preset is the case
+    # that once diverged after ~125 frames (light corner nodes of coarse faces driven through the
+    # ground by the solve; contact constraints in the solve fixed it, tests/test_contact_solve.py)
+    ("flag", ["scene.scales.small.sizing.size_min=0.08", "scene.scales.small.resolution=12"]),
+    ("sheet_on_sphere", []),
+])
+def test_long_adaptive_runs_stay_finite_and_outside_obstacles(scene, overrides):
+    sim = _sim(f"scene={scene}", *overrides)
     for _ in range(200):
         rec = sim.advance_frame()
         assert np.isfinite(rec["kinetic_energy_j"])
