@@ -3,7 +3,13 @@
 Once every `every` frames, before the frame's steps:
 
     sizing field per face  ->  area-weighted transfer to verts  ->  remesh (cloth.remesh)
-    ->  rebuild masses, rest data, sparsity (Simulation.rebuild)  ->  pop filter
+    ->  rebuild masses, rest data, sparsity (Simulation.rebuild)
+    ->  push nodes out of obstacles  ->  pop filter  ->  push nodes out of obstacles
+
+A split puts its new node at the midpoint of the edge's nodes; where the edge spans a curved
+obstacle (a coarse face over a sphere) that midpoint lies inside it, centimetres deep. Those
+nodes are moved out to the contact thickness (positions only, velocities unchanged) before the
+pop filter, which then relaxes the strain this causes around them, and again after it.
 
 The first remesh (frame 0) refines or coarsens the input mesh to its sizing and runs no pop
 filter: the cloth has no history to keep.
@@ -23,6 +29,7 @@ from .sizing import SizingParams, face_to_vert_sizing, physics_face_sizing
 INTERNAL_TERMS = ("membrane", "bending")
 # Per-frame record columns this stage fills (NaN or 0 in frames without a remesh, and in mode=nonadaptive).
 REMESH_RECORD = {"remeshed": 0, "remesh_splits": 0, "remesh_collapses": 0, "remesh_flips": 0,
+                 "remesh_nodes_pushed_out": 0, "remesh_max_depth_m": 0.0,
                  "pop_energy_before_j": float("nan"), "pop_energy_after_j": float("nan"),
                  "pop_iterations": 0}
 
@@ -38,6 +45,20 @@ def restore_momentum(mesh, momentum: np.ndarray) -> None:
     m_free = float(mesh.node_m[free].sum())
     if m_free > 0:
         mesh.node_v[free] += (momentum - mesh.node_m @ mesh.node_v) / m_free
+
+
+def push_out_of_obstacles(sim) -> dict:
+    """Move free nodes inside an obstacle out to the contact thickness; velocities are kept.
+
+    Returns the contact projection's statistics (nodes moved, deepest penetration).
+    """
+    if sim.contact is None:
+        return {"contacts": 0, "max_depth_m": 0.0}
+    mesh = sim.mesh
+    sim.obstacle_set.set_time(sim.time)
+    scratch_v = mesh.node_v.copy()  # the projection edits velocities; a remesh must not
+    return sim.contact(mesh.node_x, scratch_v, mesh.node_pinned, sim.obstacle_set, sim.scene.thickness, 0.0,
+                       sim.scene.dt)
 
 
 def changed_faces(old, new, node_origin: np.ndarray) -> np.ndarray:
@@ -111,11 +132,14 @@ class AdaptiveRemesher:
             h.local = np.ascontiguousarray(nd[sel, 9:12])
         sim.rebuild()
         restore_momentum(new, momentum)
+        pushed = push_out_of_obstacles(sim)
+        stats.update(remesh_nodes_pushed_out=pushed["contacts"], remesh_max_depth_m=pushed["max_depth_m"])
         if use_pop:
             target = nd[:, 6:9] * new.node_m[:, None]
             out = pop_filter(new, internal, changed_faces(mesh, new, result.node_origin), target, self.pop,
                              sim.solver)
             stats.update(pop_energy_before_j=out["energy_before_j"], pop_energy_after_j=out["energy_after_j"],
                          pop_iterations=out["iterations"])
+            push_out_of_obstacles(sim)
         timings["remesh"] += time.perf_counter() - t1
         return True

@@ -52,7 +52,11 @@ class ForceTerm:
 
 
 class Membrane(ForceTerm):
-    """StVK membrane on the Green strain of each face (cloth.membrane)."""
+    """StVK membrane on the Green strain of each face (cloth.membrane).
+
+    `alpha` (F,) holds each face's compression factor for buckling compensation (paper eq 10;
+    all ones, plain StVK, unless the buckling stage sets it after each rebuild).
+    """
 
     name = "membrane"
 
@@ -65,10 +69,11 @@ class Membrane(ForceTerm):
         self.slots = pattern.slots["faces"]
         F = mesh.n_faces
         self.energy, self.grad, self.hess = np.zeros(F), np.zeros((F, 9)), np.empty((F, 9, 9))
+        self.alpha = np.ones(F)
 
     def accumulate(self, mesh, t, acc):
         membrane_elements(mesh.node_x, mesh.face_nodes, mesh.face_Dm_inv, mesh.face_area,
-                          self.mu, self.lam, self.project, self.energy, self.grad, self.hess)
+                          self.mu, self.lam, self.project, self.energy, self.grad, self.hess, self.alpha)
         scatter_forces(acc.force, mesh.face_nodes, self.grad, -1.0)
         scatter_blocks(acc.K, self.slots, self.hess, 1.0)
         acc.energy[self.name] = float(self.energy.sum())

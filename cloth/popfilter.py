@@ -83,6 +83,7 @@ class _Region:
         self.face_nodes = np.ascontiguousarray(local[fn[faces]], dtype=np.int32)
         self.Dm_inv = np.ascontiguousarray(mesh.face_Dm_inv[faces])
         self.area = np.ascontiguousarray(mesh.face_area[faces])
+        self.alpha = np.ascontiguousarray(membrane.alpha[faces]) if membrane is not None else np.ones(faces.size)
         fam = {"faces": self.face_nodes}
         if bending is not None:
             self.stencil = np.ascontiguousarray(local[bending.stencil[hinges]], dtype=np.int32)
@@ -101,7 +102,7 @@ class _Region:
         if self.membrane is not None and F:
             e, g, H = np.empty(F), np.empty((F, 9)), np.empty((F, 9, 9))
             m = self.membrane
-            membrane_elements(x, self.face_nodes, self.Dm_inv, self.area, m.mu, m.lam, m.project, e, g, H)
+            membrane_elements(x, self.face_nodes, self.Dm_inv, self.area, m.mu, m.lam, m.project, e, g, H, self.alpha)
             scatter_forces(force, self.face_nodes, g, -1.0)
             scatter_blocks(K, self.pattern.slots["faces"], H, 1.0)
             energy += float(e.sum())

@@ -36,6 +36,26 @@ def summarize(frames: pd.DataFrame) -> dict:
     return out
 
 
+VISIBLE_RGB = np.array([0.15, 0.35, 0.95])  # the paper's Fig. 1: visible faces blue
+HIDDEN_RGB = np.array([0.9, 0.15, 0.1])  # not visible: red, lighter where the view factor is lower
+
+
+def _view(sim):
+    """(camera now, per-face RGB by view factor) or (None, None) without a camera."""
+    if sim.scene.camera is None:
+        return None, None
+    from .view import face_view_data, spatial_view_factor
+    from .viewdep import ViewParams, face_geometry
+    cam = sim.scene.camera.camera_at(sim.time)
+    p = getattr(sim.remesher, "view", None) or ViewParams()
+    d, front = face_view_data(cam, *face_geometry(sim.mesh))
+    nu = spatial_view_factor(d, front, p.nu_front, p.nu_back, p.nu_out, p.margin)
+    visible = (d == 0) & front
+    shade = HIDDEN_RGB * (0.4 + 0.6 * nu[:, None]) + 0.6 * (1 - nu[:, None]) * np.array([1.0, 0.8, 0.8])
+    colors = np.where(visible[:, None], VISIBLE_RGB, np.clip(shade, 0, 1))
+    return cam, colors
+
+
 def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None = None,
         obj_every: int = 0, progress: bool = False) -> dict:
     """Simulate `n_frames` frames, writing records into `out_dir`; returns the summary.
@@ -50,9 +70,9 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
     rows: list[dict] = []
     status, message, error = "interrupted", "", None
     scene = sim.scene
-    camera = scene.camera.at(sim.time) if scene.camera is not None else None
     obstacles = sim.obstacle_set.obstacles if sim.contact is not None else ()
-    recorder.log_frame(0, sim.time, sim.mesh, obstacles=obstacles, camera=camera)
+    camera, colors = _view(sim)
+    recorder.log_frame(0, sim.time, sim.mesh, face_colors=colors, obstacles=obstacles, camera=camera)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -61,8 +81,8 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
         for _ in range(n_frames):
             row = sim.advance_frame()
             t0 = time.perf_counter()
-            camera = scene.camera.at(sim.time) if scene.camera is not None else None
-            recorder.log_frame(sim.frame, sim.time, sim.mesh, obstacles=obstacles, camera=camera)
+            camera, colors = _view(sim)
+            recorder.log_frame(sim.frame, sim.time, sim.mesh, face_colors=colors, obstacles=obstacles, camera=camera)
             if obj_every > 0 and sim.frame % obj_every == 0:
                 save_obj(out_dir / "obj" / f"frame_{sim.frame:05d}.obj", sim.mesh)
             rows.append(row)

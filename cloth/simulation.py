@@ -18,6 +18,7 @@ import time
 import numpy as np
 
 from .adaptive import REMESH_RECORD
+from .viewdep import VIEW_RECORD
 from .assembly import SparsityPattern
 from .forces import Bending, ForceTerm, Gravity, Membrane, Wind, element_families
 from .integrator import ContactConstraints, implicit_euler_step
@@ -65,10 +66,15 @@ class Remesher:
 
 class Simulation:
     def __init__(self, scene: Scene, solver: SolverOptions | None = None,
-                 remesher: Remesher | None = None, max_speed: float = 100.0):
+                 remesher: Remesher | None = None, max_speed: float = 100.0, buckling=None):
+        """`buckling` (cloth.buckling.BucklingParams or None): buckling compensation on the faces
+        outside the camera's frustum; needs `scene.camera` (a cloth.camera.CameraPath)."""
         if not max_speed > 0:
             raise ValueError(f"max_speed must be > 0, got {max_speed}")
+        if buckling is not None and scene.camera is None:
+            raise ValueError("buckling compensation acts on out-of-frustum faces: it needs a camera")
         self.scene = scene
+        self.buckling = buckling
         self.solver = solver or SolverOptions()
         self.remesher = remesher
         self.max_speed = float(max_speed)  # m/s: a faster node means the run has gone bad
@@ -82,6 +88,7 @@ class Simulation:
             self.contact = resolve_obstacle_contacts
         self.frame = 0
         self.time = 0.0
+        self.steps_taken = 0
         self.last_energy: dict = {}
         self.rebuild()
         if self.contact is not None:
@@ -99,6 +106,21 @@ class Simulation:
         self.last_dv = None  # warm start of the solver; its size changes with the node count
         for term in self.terms:
             term.rebuild(mesh, self.pattern)
+        self.update_buckling()
+
+    def update_buckling(self) -> None:
+        """Compression factors (paper eq 11) of the faces out of the frustum of the camera now."""
+        if self.buckling is None:
+            return
+        from .buckling import face_alpha
+        mesh = self.scene.mesh
+        camera = self.scene.camera.camera_at(self.time)
+        out = camera.distance_to_frustum(mesh.node_x[mesh.face_nodes].mean(axis=1)) > 0
+        alpha = face_alpha(mesh.face_area, out, self.buckling)
+        for term in self.terms:
+            if term.name == "membrane":
+                term.alpha = alpha
+        self.faces_compensated = int(np.count_nonzero(alpha < 1.0))
 
     # ------------------------------------------------------------------------------------
     def _fixed_targets(self, t: float) -> np.ndarray | None:
@@ -132,7 +154,11 @@ class Simulation:
             m.damping_stiffness if self.damping else 0.0,
             self._fixed_targets(self.time + h), self.solver, self.last_dv, contacts,
         )
-        self.time += h
+        self.steps_taken += 1
+        # frame start + steps within it: no round-off drift over long runs, so that a frame's
+        # time is exactly frame * frame_time (camera cuts and keyframes are given at such times)
+        k = self.steps_taken - self.frame * scene.steps_per_frame
+        self.time = (self.frame + 1) * scene.frame_time if k == scene.steps_per_frame else self.frame * scene.frame_time + k * h
         timings["physics"] += s.time_physics_s
         timings["solve"] += s.time_solve_s
         stats["solver_iterations"] += s.iterations
@@ -165,8 +191,13 @@ class Simulation:
         timings = {p: 0.0 for p in PHASES}
         stats = {"solver_iterations": 0, "solver_iterations_max": 0, "solver_residual": 0.0, "contacts": 0}
         stats.update(REMESH_RECORD)
+        stats.update(VIEW_RECORD)
         if self.remesher is not None:
             self.remesher.remesh(self, timings, stats)
+        if self.buckling is not None:
+            t0 = time.perf_counter()
+            self.update_buckling()
+            timings["sizing"] += time.perf_counter() - t0
         for _ in range(self.scene.steps_per_frame):
             self.step(timings, stats)
         self.frame += 1
@@ -179,18 +210,37 @@ class Simulation:
         record["wall_s"] = wall
         return record
 
+    def view_counts(self) -> dict:
+        """Faces in view (in the frustum and facing the camera), back-facing in frame, out of frame.
+
+        NaN without a camera. The same definitions as the view-dependent sizing (face centroids).
+        """
+        nan = float("nan")
+        if self.scene.camera is None:
+            return {"faces_in_view": nan, "faces_back_facing": nan, "faces_out_of_frame": nan,
+                    "faces_compensated": nan}
+        from .view import face_view_data
+        from .viewdep import face_geometry
+        c, n = face_geometry(self.scene.mesh)
+        d, front = face_view_data(self.scene.camera.camera_at(self.time), c, n)
+        inside = d == 0
+        return {"faces_in_view": int(np.count_nonzero(inside & front)),
+                "faces_back_facing": int(np.count_nonzero(inside & ~front)),
+                "faces_out_of_frame": int(np.count_nonzero(~inside)),
+                "faces_compensated": self.faces_compensated if self.buckling is not None else 0}
+
     def state_record(self) -> dict:
         """Counts, energies and quality of the current state."""
         mesh = self.scene.mesh
         v2 = np.einsum("ij,ij->i", mesh.node_v, mesh.node_v)
         energy = self.last_energy  # evaluated at the start of the last step: no extra assembly
-        return {
+        view = self.view_counts()
+        return {**view,
             "frame": self.frame,
             "sim_time_s": self.time,
             "nodes": mesh.n_nodes,
             "verts": mesh.n_verts,
             "faces": mesh.n_faces,
-            "faces_in_view": float("nan"),  # filled when the scene has a camera (view-dependent issue)
             "kinetic_energy_j": float(0.5 * np.sum(mesh.node_m * v2)),
             "potential_energy_j": float(sum(energy.values())),
             "elastic_energy_j": float(energy.get("membrane", 0.0) + energy.get("bending", 0.0)),

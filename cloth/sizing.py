@@ -345,3 +345,17 @@ def face_to_vert_sizing(mesh: Mesh, face_M: np.ndarray) -> np.ndarray:
         np.add.at(out, mesh.face_verts[:, k], w[:, None, None] * face_M)
         np.add.at(total, mesh.face_verts[:, k], w)
     return out / total[:, None, None]
+
+
+def face_edge_sizes(mesh: Mesh, vert_M: np.ndarray) -> np.ndarray:
+    """(F, 3) edge size s of each face's sides (paper eq 1), side k from vert k to vert k+1.
+
+    s^2(i, j) = u_ij^T ((M_i + M_j) / 2) u_ij with u_ij the material edge; s > 1 is an invalid
+    edge that the remesher splits.
+    """
+    fv = mesh.face_verts
+    a = fv.reshape(-1)
+    b = np.roll(fv, -1, axis=1).reshape(-1)
+    d = mesh.vert_u[b] - mesh.vert_u[a]
+    M = 0.5 * (vert_M[a] + vert_M[b])
+    return np.sqrt(np.einsum("ei,eij,ej->e", d, M, d)).reshape(-1, 3)

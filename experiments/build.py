@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from omegaconf import DictConfig, OmegaConf
 
-IMPLEMENTED_MODES = ("nonadaptive", "adaptive")
-REMESHING_MODES = ("adaptive",)
+IMPLEMENTED_MODES = ("nonadaptive", "adaptive", "viewdep")
+REMESHING_MODES = ("adaptive", "viewdep")
 
 
 class ConfigError(ValueError):
@@ -42,7 +42,34 @@ def _params(cls, values: dict, key: str):
         raise ConfigError(f"{key}.{exc}") from None
 
 
-def build_remesher(mode_cfg: DictConfig, sizing_overrides: dict):
+def build_camera(cfg: DictConfig):
+    """The camera path of `cfg.camera` (None for camera=none); ConfigError names a bad camera.* key."""
+    from cloth.camera import path_from_config
+    from cloth.view import ViewError
+
+    cam = cfg.get("camera")
+    if cam is None or cam.get("type") in (None, "none"):
+        return None
+    try:
+        return path_from_config(OmegaConf.to_container(cam, resolve=True))
+    except (ViewError, KeyError, TypeError, ValueError) as exc:
+        raise ConfigError(f"camera: {exc}") from None
+
+
+def build_buckling(mode_cfg: DictConfig, camera):
+    """BucklingParams from mode.buckling (null: off); it needs a camera (out-of-frustum faces)."""
+    from cloth.buckling import BucklingParams
+
+    b = mode_cfg.get("buckling")
+    if b is None:
+        return None
+    _require(camera is not None, "mode.buckling",
+             "buckling compensation acts on faces outside the camera's frustum: choose a camera "
+             "(camera=<name>, conf/camera/) or set mode.buckling=null")
+    return _params(BucklingParams, OmegaConf.to_container(b, resolve=True), "mode.buckling")
+
+
+def build_remesher(mode_cfg: DictConfig, sizing_overrides: dict, camera=None, frame_time: float = 0.04):
     """The remesh stage of a remeshing mode (ConfigError names a bad mode.* key)."""
     from cloth.adaptive import AdaptiveRemesher
     from cloth.popfilter import PopFilterParams
@@ -55,13 +82,21 @@ def build_remesher(mode_cfg: DictConfig, sizing_overrides: dict):
     pop = mode_cfg.get("pop_filter")
     every = mode_cfg.get("every", 1)
     _require(isinstance(every, int) and every >= 1, "mode.every", f"must be an integer >= 1, got {every!r}")
-    return AdaptiveRemesher(
+    common = dict(
         sizing=_params(SizingParams, sizing, "mode.sizing"),
         params=_params(RemeshParams, remesh, "mode.remesh"),
         pop=None if pop is None else _params(PopFilterParams, OmegaConf.to_container(pop, resolve=True),
                                              "mode.pop_filter"),
         every=every,
     )
+    if mode_cfg.name != "viewdep":
+        return AdaptiveRemesher(**common)
+    from cloth.viewdep import ViewDependentRemesher, ViewParams
+
+    _require(camera is not None, "camera",
+             "mode=viewdep needs a camera path; choose one with camera=<name> (conf/camera/), e.g. camera=sheet_half")
+    view = _params(ViewParams, OmegaConf.to_container(mode_cfg.view, resolve=True), "mode.view")
+    return ViewDependentRemesher(**common, camera=camera, view=view, frame_time=frame_time)
 
 
 def build_simulation(cfg: DictConfig):
@@ -100,9 +135,13 @@ def build_simulation(cfg: DictConfig):
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     _require(int(cfg.output.obj_every) >= 0, "output.obj_every", f"must be >= 0, got {cfg.output.obj_every}")
-    remesher = build_remesher(cfg.mode, sizing_overrides) if mode in REMESHING_MODES else None
+    camera = build_camera(cfg)
+    buckling = build_buckling(cfg.mode, camera)
     try:
         scene = build_scene(name, material, **params)
     except (SceneError, MeshError) as exc:
         raise ConfigError(f"scene: {exc}") from None
-    return Simulation(scene, solver=solver, remesher=remesher, max_speed=float(cfg.max_speed)), int(cfg.frames)
+    scene.camera = camera
+    remesher = build_remesher(cfg.mode, sizing_overrides, camera, scene.frame_time) if mode in REMESHING_MODES else None
+    return (Simulation(scene, solver=solver, remesher=remesher, max_speed=float(cfg.max_speed), buckling=buckling),
+            int(cfg.frames))

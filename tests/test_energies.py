@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from cloth.bending import bending_element, bending_elements, dihedral_angle, hinge_weight
-from cloth.membrane import (face_green_strain, green_strain, lame_parameters, membrane_elements,
-                            stvk_element)
+from cloth.membrane import (SOFTENING_STRAIN, deformation_gradient, face_green_strain, green_strain,
+                            lame_parameters, membrane_elements, stvk_element)
 
 # Central differences with step 1e-6 on O(1) coordinates have truncation error ~1e-12 and
 # round-off ~1e-10 relative; the issue asks for agreement below 1e-5.
@@ -145,6 +145,26 @@ def test_projected_hessians_are_psd_and_exact_where_already_psd():
     assert n_indefinite > 0  # the cases do exercise the projection
 
 
+def test_membrane_projection_clamps_and_takes_absolute_values_past_the_softening_point():
+    """Negative eigenvalues -> 0 under ordinary compression, -> |w| where a principal stretch is
+    below 1/sqrt(3) (cloth.membrane.SOFTENING_STRAIN)."""
+    u, B, A = _rest_triangle(5)
+    x0 = np.column_stack([u, np.zeros(3)])
+    seen = set()
+    for squeeze in (0.8, 0.65, 0.5, 0.3):  # stretch along x; 0.5 and 0.3 are past 1/sqrt(3) = 0.577
+        x = (x0 * [squeeze, 1.0, 1] + 0.01 * np.random.default_rng(1).standard_normal((3, 3))).reshape(-1)
+        H = _membrane(x, B, A)[2]
+        Hp = _membrane(x, B, A, True)[2]
+        w, V = np.linalg.eigh(H)
+        assert w.min() < 0
+        E = green_strain(deformation_gradient(x[0:3], x[3:6], x[6:9], B))
+        soft = bool(np.linalg.eigvalsh(E).min() < SOFTENING_STRAIN)
+        seen.add(soft)
+        expected = (V * (np.abs(w) if soft else np.maximum(w, 0.0))) @ V.T
+        assert np.allclose(Hp, expected, atol=1e-9 * np.abs(H).max())
+    assert seen == {True, False}
+
+
 def test_green_strain_and_stvk_energy_of_a_uniform_stretch():
     F = np.array([[1.1, 0.0], [0.0, 1.0], [0.0, 0.0]])
     assert np.allclose(green_strain(F), [[0.105, 0.0], [0.0, 0.0]], atol=ROUNDOFF)
@@ -184,7 +204,7 @@ def test_batch_kernels_match_single_elements():
     x = mesh.node_x + 0.05 * rng.standard_normal(mesh.node_x.shape)
     F = mesh.n_faces
     e, g, H = np.empty(F), np.empty((F, 9)), np.empty((F, 9, 9))
-    membrane_elements(x, mesh.face_nodes, mesh.face_Dm_inv, mesh.face_area, MU, LAM, True, e, g, H)
+    membrane_elements(x, mesh.face_nodes, mesh.face_Dm_inv, mesh.face_area, MU, LAM, True, e, g, H, np.ones(mesh.n_faces))
     strains = face_green_strain(x, mesh.face_nodes, mesh.face_Dm_inv)
     for f in range(F):
         n = mesh.face_nodes[f]
