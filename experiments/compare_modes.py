@@ -1,11 +1,15 @@
-"""Measure nonadaptive against adaptive on the same scene, in one run (issue: adaptive remeshing, item 7).
+"""Measure the three modes on the same scene and camera, in one run (the adaptive and view-dependent
+issues, item 7 of each).
 
-    python -m experiments.compare_modes [--scenes sheet_on_sphere flag] [--frames 60] [--scale small]
+    python -m experiments.compare_modes [--scenes sheet_on_sphere flag] [--modes nonadaptive adaptive viewdep]
+                                        [--frames 60] [--scale small] [--camera scene=camera ...]
 
 The nonadaptive mesh of each scale preset has the edge length of the adaptive's finest edge
-(scene.scales.<scale>.sizing.size_min). Writes results/compare_modes/<timestamp>/frames.parquet
-(every frame of every run) and table.csv / table.md (faces and time per frame, min/max/mean,
-speed-up of adaptive over nonadaptive, share of frame time per phase) and prints the table.
+(scene.scales.<scale>.sizing.size_min). Every mode sees the same camera (DEFAULT_CAMERAS, a camera
+that frames part of the cloth); only mode=viewdep uses it for sizing, the others for the records
+(faces in view). Writes results/compare_modes/<timestamp>/frames.parquet (every frame of every
+run) and table.csv / table.md (faces, faces in view and time per frame, min/max/mean; speed-ups
+over nonadaptive and over adaptive; share of frame time per phase) and prints the table.
 """
 
 from __future__ import annotations
@@ -21,13 +25,15 @@ from cloth.io.manifest import environment_manifest, write_json_atomic, write_tex
 from experiments.build import build_simulation
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
+DEFAULT_CAMERAS = {"sheet_on_sphere": "sheet_half", "flag": "flag_partial"}
 PHASE_SHARES = {"sizing": ["time_sizing_s"], "remesh": ["time_remesh_s"],
                 "physics": ["time_physics_s", "time_solve_s"], "collisions": ["time_collisions_s"]}
 
 
-def run(scene: str, mode: str, frames: int, scale: str) -> pd.DataFrame:
+def run(scene: str, mode: str, frames: int, scale: str, camera: str = "none") -> pd.DataFrame:
     with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        cfg = compose(config_name="config", overrides=[f"scene={scene}", f"mode={mode}", f"scale={scale}"])
+        cfg = compose(config_name="config", overrides=[f"scene={scene}", f"mode={mode}", f"scale={scale}",
+                                                       f"camera={camera}"])
     sim = build_simulation(cfg)[0]
     rows = [sim.advance_frame() for _ in range(frames)]
     df = pd.DataFrame(rows)
@@ -40,14 +46,16 @@ def table(frames: pd.DataFrame) -> pd.DataFrame:
     for (scene, mode), d in frames.groupby(["scene", "mode"], sort=False):
         row = {"scene": scene, "mode": mode,
                "faces_min": d.faces.min(), "faces_max": d.faces.max(), "faces_mean": d.faces.mean(),
+               "faces_in_view_mean": d.faces_in_view.mean(),
                "s_per_frame_min": d.wall_s.min(), "s_per_frame_max": d.wall_s.max(),
                "s_per_frame_mean": d.wall_s.mean()}
         for phase, cols in PHASE_SHARES.items():
             row[f"share_{phase}"] = d[cols].sum(axis=1).sum() / d.wall_s.sum()
         out.append(row)
     t = pd.DataFrame(out)
-    base = t[t["mode"] == "nonadaptive"].set_index("scene")["s_per_frame_mean"]
-    t["speedup_vs_nonadaptive"] = base.reindex(t["scene"]).to_numpy() / t["s_per_frame_mean"]
+    for ref in ("nonadaptive", "adaptive"):
+        base = t[t["mode"] == ref].set_index("scene")["s_per_frame_mean"]
+        t[f"speedup_vs_{ref}"] = base.reindex(t["scene"]).to_numpy() / t["s_per_frame_mean"]
     return t
 
 
@@ -64,17 +72,29 @@ def main(argv=None) -> None:
     ap.add_argument("--scenes", nargs="+", default=["sheet_on_sphere", "flag"])
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--scale", default="small")
+    ap.add_argument("--modes", nargs="+", default=["nonadaptive", "adaptive", "viewdep"])
+    ap.add_argument("--camera", nargs="*", default=[], metavar="SCENE=CAMERA",
+                    help=f"camera per scene (conf/camera/); defaults: {DEFAULT_CAMERAS}")
     ap.add_argument("--warmup", type=int, default=1, help="frames excluded from the table (compilation)")
     args = ap.parse_args(argv)
     if args.frames <= args.warmup:
         ap.error(f"--frames ({args.frames}) must exceed --warmup ({args.warmup})")
+    cameras = dict(DEFAULT_CAMERAS)
+    for item in args.camera:
+        scene, sep, cam = item.partition("=")
+        if not sep:
+            ap.error(f"--camera takes SCENE=CAMERA, got {item!r}")
+        cameras[scene] = cam
+    missing = [s for s in args.scenes if s not in cameras]
+    if "viewdep" in args.modes and missing:
+        ap.error(f"mode viewdep needs a camera for {missing}: --camera {missing[0]}=<name>")
     out_dir = Path("results/compare_modes") / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     out_dir.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out_dir / "manifest.json", environment_manifest(0))
     runs = []
     for scene in args.scenes:
-        for mode in ("nonadaptive", "adaptive"):
-            df = run(scene, mode, args.frames, args.scale)
+        for mode in args.modes:
+            df = run(scene, mode, args.frames, args.scale, cameras.get(scene, "none"))
             runs.append(df)
             print(f"{scene:16s} {mode:12s} done: {df.faces.mean():8.0f} faces, {df.wall_s.iloc[args.warmup:].mean():.3f} s/frame")
     frames = pd.concat(runs, ignore_index=True)

@@ -141,3 +141,47 @@ def test_long_viewdep_run_under_an_orbit_with_a_cut_stays_finite_and_outside_obs
         x = sim.mesh.node_x
         assert np.linalg.norm(x - [0, 0, 0.25], axis=1).min() - 0.25 >= sim.scene.thickness - CONTACT_SLACK
         assert x[:, 2].min() >= sim.scene.thickness - CONTACT_SLACK
+
+
+def test_records_and_recording_with_a_camera(tmp_path):
+    from cloth.runner import run
+
+    class Capture:  # stands in for the Rerun recorder
+        def __init__(self):
+            self.calls = []
+
+        def log_frame(self, frame, time_s, mesh, face_colors=None, obstacles=(), camera=None):
+            self.calls.append((mesh.n_faces, face_colors, camera))
+
+        def close(self):
+            pass
+
+    sim = _sim("mode=viewdep", "camera=sheet_half", "output.rerun=false")
+    rec = Capture()
+    run(sim, 8, tmp_path, recorder=rec)
+    import pandas as pd
+    frames = pd.read_parquet(tmp_path / "frames.parquet")
+    for col in ("faces_in_view", "faces_back_facing", "faces_out_of_frame", "faces_compensated",
+                "view_factor_min", "view_factor_mean", "view_factor_max"):
+        assert frames[col].notna().all(), col
+    assert (frames.faces_in_view + frames.faces_back_facing + frames.faces_out_of_frame == frames.faces).all()
+    assert (frames.view_factor_min <= frames.view_factor_mean).all()
+    assert (frames.view_factor_mean <= frames.view_factor_max).all()
+    n_faces, colors, camera = rec.calls[-1]
+    assert camera is not None and colors.shape == (n_faces, 3)
+    blue = np.isclose(colors[:, 2], 0.95)  # visible faces are blue (cloth.runner.VISIBLE_RGB)
+    assert blue.sum() == frames.faces_in_view.iloc[-1]
+    # without a camera the view columns are NaN and the cloth has one colour
+    sim = _sim("mode=adaptive")
+    rec = Capture()
+    run(sim, 2, tmp_path / "nocam", recorder=rec)
+    frames = pd.read_parquet(tmp_path / "nocam" / "frames.parquet")
+    assert frames.faces_in_view.isna().all() and frames.view_factor_mean.isna().all()
+    assert rec.calls[-1][1] is None and rec.calls[-1][2] is None
+
+
+def test_bad_camera_config_is_named():
+    with pytest.raises(ConfigError, match="camera"):
+        _sim("mode=viewdep", "camera=sheet_half", "camera.type=dolly")
+    with pytest.raises(ConfigError, match="camera"):
+        _sim("mode=viewdep", "camera=sheet_half", "camera.camera.fov_y_deg=200")
