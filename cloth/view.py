@@ -19,8 +19,10 @@ keyframes, jump cuts) are in :mod:`cloth.camera`.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
+from numba import njit
 
 
 class ViewError(ValueError):
@@ -136,33 +138,86 @@ class Camera:
         one of its six faces (then the distance is that face's plane distance and the point
         projects inside the face) or on one of its twelve edges (a segment distance).
         """
-        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        corners = self.frustum_corners()
-        center = corners.mean(axis=0)
-        best = np.full(p.shape[0], np.inf)
-        for face in self._FACES:
-            q = corners[list(face)]
-            n = np.cross(q[1] - q[0], q[2] - q[0])
-            n /= np.linalg.norm(n)
-            if (center - q[0]) @ n > 0:  # outward normal; the side tests below then agree in sign
-                n = -n
-            h = (p - q[0]) @ n
-            foot = p - h[:, None] * n
-            within = np.ones(p.shape[0], dtype=bool)
-            for k in range(4):
-                a, b = q[k], q[(k + 1) % 4]
-                side = np.cross(b - a, foot - a) @ n
-                ref = np.cross(b - a, q[(k + 2) % 4] - a) @ n  # the sign of the face's own interior
-                within &= side * ref >= 0.0
-            cand = np.where(within & (h > 0), h, np.inf)
-            best = np.minimum(best, cand)
-        for i, j in self._EDGES:
-            a, b = corners[i], corners[j]
-            ab = b - a
-            s = np.clip(((p - a) @ ab) / (ab @ ab), 0.0, 1.0)
-            best = np.minimum(best, np.linalg.norm(p - (a + s[:, None] * ab), axis=1))
-        best[self.inside(p)] = 0.0
-        return best
+        cam = np.ascontiguousarray(self.to_camera(np.asarray(points, dtype=np.float64).reshape(-1, 3)))
+        plane, sides, seg = _frustum_geometry(self._tan[0], self._tan[1], float(self.near), float(self.far))
+        return _frustum_distance(cam, plane, sides, seg, self._tan[0], self._tan[1], float(self.near), float(self.far))
+
+
+@lru_cache(maxsize=64)
+def _frustum_geometry(tx: float, ty: float, near: float, far: float):
+    """The frustum in camera coordinates (distances are the same as in the world): per face a
+    corner and the outward normal, per face side its start and inward normal, per edge a segment."""
+    corners = np.array([[sx * tx * d, sy * ty * d, d] for d in (near, far)
+                        for sx, sy in ((-1, 1), (1, 1), (1, -1), (-1, -1))])
+    center = corners.mean(axis=0)
+    plane = np.empty((6, 2, 3))
+    sides = np.empty((6, 4, 2, 3))
+    for f, quad in enumerate(Camera._FACES):
+        q = corners[list(quad)]
+        n = np.cross(q[1] - q[0], q[2] - q[0])
+        n /= np.linalg.norm(n)
+        if (center - q[0]) @ n > 0:
+            n = -n
+        plane[f] = q[0], n
+        for k in range(4):
+            a, b = q[k], q[(k + 1) % 4]
+            m = np.cross(n, b - a)
+            if (q.mean(axis=0) - a) @ m < 0:
+                m = -m
+            sides[f, k] = a, m
+    seg = np.array([[corners[i], corners[j] - corners[i]] for i, j in Camera._EDGES])
+    for arr in (plane, sides, seg):
+        arr.setflags(write=False)
+    return plane, sides, seg
+
+
+@njit(cache=True)
+def _dot3(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit(cache=True)
+def _frustum_distance(p, plane, sides, seg, tx, ty, near, far):
+    """Kernel of Camera.distance_to_frustum, all in camera coordinates."""
+    cam = p
+    n = p.shape[0]
+    out = np.empty(n)
+    d = np.empty(3)
+    for i in range(n):
+        z = cam[i, 2]
+        if near <= z <= far and abs(cam[i, 0]) <= tx * z and abs(cam[i, 1]) <= ty * z:
+            out[i] = 0.0
+            continue
+        best = np.inf
+        for f in range(6):
+            for c in range(3):
+                d[c] = p[i, c] - plane[f, 0, c]
+            h = _dot3(d, plane[f, 1])
+            if h <= 0.0 or h >= best:
+                continue
+            within = True
+            for k in range(4):  # the foot p - h n against each side's inward normal
+                s = 0.0
+                for c in range(3):
+                    s += (p[i, c] - h * plane[f, 1, c] - sides[f, k, 0, c]) * sides[f, k, 1, c]
+                if s < 0.0:
+                    within = False
+                    break
+            if within:
+                best = h
+        for e in range(seg.shape[0]):
+            for c in range(3):
+                d[c] = p[i, c] - seg[e, 0, c]
+            ab = seg[e, 1]
+            t = min(max(_dot3(d, ab) / _dot3(ab, ab), 0.0), 1.0)
+            r2 = 0.0
+            for c in range(3):
+                r = d[c] - t * ab[c]
+                r2 += r * r
+            if r2 < best * best:
+                best = np.sqrt(r2)
+        out[i] = best
+    return out
 
 
 # ---- the paper's equations -----------------------------------------------------------------
