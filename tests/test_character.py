@@ -1,0 +1,111 @@
+"""The mannequin: proportions, rigid forward kinematics, motions that start from rest and are
+smooth in time, capsule velocities consistent with the motion, and the body as an obstacle."""
+
+import numpy as np
+import pytest
+
+from cloth.character import (CAPSULE_NAMES, CAPSULE_RADII, HEIGHT, JOINTS, Dance, Karate, Mannequin, Pose,
+                             capsule_endpoints, make_motion)
+
+ROUNDOFF = 1e-9
+# The capsule velocities are central differences over 1e-4 s; over a 1e-3 s window the mean
+# velocity (from positions) agrees with them to (accel + jerk) x step^2 ~ 1e-4 m/s.
+VELOCITY_TOL = 1e-3
+# "No velocity jumps": between samples 1 ms apart the capsule velocities change by at most
+# max acceleration x 1 ms; at speed 1 the motions' accelerations stay below 200 m/s^2 (a punch,
+# a kick, the blend-in of the raised arms), at speed s below s^2 times that. A jump (a kink in a
+# joint-angle curve) would show as a change of the order of the velocity itself (metres/second).
+MAX_DV_PER_MS = 0.2
+
+
+def test_rest_pose_has_human_proportions():
+    ends = capsule_endpoints(Pose())
+    bottom = (ends[..., 2] - CAPSULE_RADII[:, None]).min()
+    top = (ends[..., 2] + CAPSULE_RADII[:, None]).max()
+    assert bottom == pytest.approx(0.0, abs=0.005)
+    assert top == pytest.approx(HEIGHT, abs=0.01)
+    k = {n: i for i, n in enumerate(CAPSULE_NAMES)}
+    assert set(k) >= {"head", "neck", "chest", "abdomen", "pelvis", "upper_arm_l", "lower_arm_r", "hand_l",
+                      "upper_leg_r", "lower_leg_l", "foot_r"}
+    leg = np.linalg.norm(ends[k["upper_leg_l"], 1] - ends[k["upper_leg_l"], 0]) + \
+        np.linalg.norm(ends[k["lower_leg_l"], 1] - ends[k["lower_leg_l"], 0])
+    arm = np.linalg.norm(ends[k["upper_arm_r"], 1] - ends[k["upper_arm_r"], 0]) + \
+        np.linalg.norm(ends[k["lower_arm_r"], 1] - ends[k["lower_arm_r"], 0])
+    assert 0.48 * HEIGHT < leg + 0.06 < 0.56 * HEIGHT  # leg length ~ half the height
+    assert 0.30 * HEIGHT < arm < 0.36 * HEIGHT
+
+
+def test_forward_kinematics_is_rigid_per_segment():
+    rest = capsule_endpoints(Pose())
+    rng = np.random.default_rng(0)
+    pose = Pose(rng.normal(size=3), 1.3, {j: tuple(rng.uniform(-1, 1, 3)) for j in JOINTS})
+    posed = capsule_endpoints(pose)
+    assert np.allclose(np.linalg.norm(posed[:, 1] - posed[:, 0], axis=1),
+                       np.linalg.norm(rest[:, 1] - rest[:, 0], axis=1), atol=ROUNDOFF)
+    assert not np.allclose(posed, rest)
+
+
+@pytest.mark.parametrize("motion", [Dance(), Karate(), Dance(speed=2.0), Karate(speed=2.0)])
+def test_motions_start_at_rest_and_are_smooth(motion):
+    m = Mannequin(motion)
+    rest = capsule_endpoints(Pose())
+    m.set_time(0.0)
+    assert np.allclose(m.ends, rest, atol=ROUNDOFF)
+    assert np.abs(m.end_velocities).max() < ROUNDOFF
+    prev = None
+    speed = motion.speed
+    for t in np.arange(0.0, 6.0 / speed, 1e-3):
+        m.set_time(t)
+        if prev is not None:
+            assert np.abs(m.end_velocities - prev).max() < MAX_DV_PER_MS * speed ** 2, t
+        prev = m.end_velocities.copy()
+
+
+@pytest.mark.parametrize("motion", [Dance(), Karate()])
+def test_capsule_velocities_are_the_motion_s(motion):
+    m = Mannequin(motion, position=(1.0, 2.0, 0.0), heading=0.7, phase=0.3)
+    for t in (1.3, 2.25, 3.9):
+        dt = 1e-3
+        m.set_time(t - dt / 2)
+        a = m.ends.copy()
+        m.set_time(t + dt / 2)
+        b = m.ends.copy()
+        m.set_time(t)
+        assert np.allclose(m.end_velocities, (b - a) / dt, atol=VELOCITY_TOL)
+
+
+def test_dance_spins_fast_enough_to_flare_a_skirt():
+    m = Mannequin(Dance())
+    m.set_time(3.0)  # after the blend-in
+    k = CAPSULE_NAMES.index("pelvis")
+    # the hip's surface at radius ~0.19 m moves at 2 pi r f ~ 1.2 m/s: enough for a skirt to flare
+    surface_speed = np.linalg.norm(m.end_velocities[k], axis=1).max()
+    assert surface_speed > 0.3
+    heading_rate = 2 * np.pi * Dance().spin_hz
+    assert heading_rate >= 2 * np.pi * 0.9
+
+
+def test_mannequin_is_a_moving_obstacle_with_surface_velocity():
+    m = Mannequin(Karate(), position=(0.5, 0.0, 0.0))
+    m.set_time(2.7)  # mid-routine
+    k = CAPSULE_NAMES.index("lower_arm_l")
+    mid = m.ends[k].mean(axis=0)
+    outward = np.cross(m.ends[k, 1] - m.ends[k, 0], [0.0, 0.0, 1.0])
+    outward /= np.linalg.norm(outward)
+    p = mid + (CAPSULE_RADII[k] - 0.01) * outward  # 1 cm inside the forearm
+    phi, normal, vel = m.query(p[None])
+    assert phi[0] < 0
+    assert np.allclose(vel[0], m.end_velocities[k].mean(axis=0), atol=1e-9)
+    assert m.moving
+
+
+def test_phases_shift_the_motion_and_runs_are_deterministic():
+    a, b = Mannequin(Dance(), phase=0.5), Mannequin(Dance())
+    a.set_time(2.0)
+    b.set_time(2.5)
+    assert np.allclose(a.ends, b.ends, atol=ROUNDOFF)
+    c = Mannequin(Dance(), phase=0.5)
+    c.set_time(2.0)
+    assert np.array_equal(a.ends, c.ends)
+    with pytest.raises(ValueError, match="unknown motion"):
+        make_motion("waltz")
