@@ -143,13 +143,16 @@ class Rest(Motion):
 @dataclass
 class Dance(Motion):
     """Turns about the vertical axis, hip sway, raised arms and steps; fast enough that a circle
-    skirt flares out (up to `spin_hz` turns per second after the blend-in)."""
+    skirt flares out (up to `spin_hz` turns per second after the blend-in). The opening pose holds
+    the arms out to the sides (`start_arms` rad of shoulder abduction), clear of a skirt's
+    starting disc at the waist."""
 
     name = "dance"
     speed: float = 1.0  # time scale (2 = twice as fast)
     spin_hz: float = 1.0  # turns per second at full motion
     blend_in: float = 1.0  # s
     settle: float = 0.5  # s at rest before the blend-in starts (garments settle)
+    start_arms: float = 1.45  # rad, shoulder abduction of the opening pose (~83 degrees)
 
     def pose(self, t):
         s = self.speed * t
@@ -159,7 +162,7 @@ class Dance(Motion):
         step = 2 * np.pi * 1.2 * s  # 1.2 steps per second
         sway = 0.25 * np.sin(step)
         lift_l, lift_r = max(np.sin(step), 0.0) ** 2, max(-np.sin(step), 0.0) ** 2
-        arms = 2.4 * w  # shoulders raised to ~140 degrees
+        arms = self.start_arms + (2.4 - self.start_arms) * w  # raised from the opening pose to ~140 degrees
         a = {
             "pelvis": (0.0, 0.15 * w * np.sin(step), sway * w),
             "abdomen": (0.0, -0.1 * w * np.sin(step), -0.5 * sway * w),
@@ -179,12 +182,16 @@ class Dance(Motion):
 
 @dataclass
 class Karate(Motion):
-    """Stance, alternating punches, a front kick and a half turn, on a 4 s loop after the blend-in."""
+    """Stance, alternating punches, a front kick and a half turn, on a 4 s loop after the blend-in.
+    The opening pose (yoi) holds the fists forward at belt height, upper arms `start_shoulder` rad
+    forward and elbows `start_elbow` rad bent, so the arms stay above the skirts of the outfit."""
 
     name = "karate"
     speed: float = 1.0
     blend_in: float = 1.0
     settle: float = 0.5
+    start_shoulder: float = 0.6  # rad, upper arms forward in the opening pose
+    start_elbow: float = 1.4  # rad, elbows bent in the opening pose
 
     def pose(self, t):
         s = self.speed * t
@@ -196,14 +203,17 @@ class Karate(Motion):
         turn = smoothstep((u - 2.8) / 0.8)  # half turn from 2.8 s to 3.6 s of each loop
         loops = np.floor(max(s - self.settle - self.blend_in, 0.0) / 4.0)
         heading = np.pi * (loops + turn) * w
+        sh0, el0 = self.start_shoulder, self.start_elbow
+        guard = sh0 + (0.9 - sh0) * w  # upper arms forward: opening pose -> guard
+        bend = el0 + (1.6 - el0) * w
         a = {
             "pelvis": (0.0, 0.0, 0.2 * w),
             "chest": (0.0, 0.0, -0.2 * w + 0.3 * (punch_r - punch_l)),
-            # guard: arms forward and bent; a punch raises the arm forward and straightens it
-            "shoulder_l": (-w * (0.9 + 0.7 * punch_l), -0.2 * w, 0.0),
-            "elbow_l": (-w * 1.6 * (1 - punch_l), 0.0, 0.0),
-            "shoulder_r": (-w * (0.9 + 0.7 * punch_r), 0.2 * w, 0.0),
-            "elbow_r": (-w * 1.6 * (1 - punch_r), 0.0, 0.0),
+            # a punch raises the arm forward (0.7 rad more) and straightens the elbow
+            "shoulder_l": (-(guard + 0.7 * w * punch_l), -0.2 * w, 0.0),
+            "elbow_l": (-bend * (1 - w * punch_l), 0.0, 0.0),
+            "shoulder_r": (-(guard + 0.7 * w * punch_r), 0.2 * w, 0.0),
+            "elbow_r": (-bend * (1 - w * punch_r), 0.0, 0.0),
             # stance: legs apart, knees bent; the kick raises the right thigh and extends the shin
             "hip_l": (-0.3 * w, -0.25 * w, 0.0),
             "knee_l": (0.5 * w, 0.0, 0.0),

@@ -36,6 +36,51 @@ def summarize(frames: pd.DataFrame) -> dict:
     return out
 
 
+# Per-frame columns that add up over the characters of a crowd (everything else is per character).
+CROWD_SUM_COLUMNS = ("faces", "verts", "nodes", "wall_s", "solver_iterations", "contacts", "faces_in_view",
+                     "faces_back_facing", "faces_out_of_frame", "faces_compensated", "kinetic_energy_j")
+
+
+def combine_crowd(character_dirs: list, out_dir: Path) -> tuple[pd.DataFrame, dict]:
+    """The records of a crowd from its characters' run folders (never re-simulating).
+
+    frames.parquet: per frame, the sum over the characters of CROWD_SUM_COLUMNS and of every
+    time_*_s column, the largest max_speed_m_s and the smallest min_face_quality, over the frames
+    that every character completed. summary.json: the Table 1 statistics of those sums, the
+    worst status of the characters, and each character's own summary.
+    """
+    import json
+
+    out_dir = Path(out_dir)
+    frames, summaries = [], []
+    for d in character_dirs:
+        d = Path(d)
+        f = d / "frames.parquet"
+        frames.append(pd.read_parquet(f) if f.exists() else pd.DataFrame())
+        s = d / "summary.json"
+        summaries.append(json.loads(s.read_text()) if s.exists() else {"status": "missing"})
+    n = min(len(f) for f in frames)
+    rows = pd.DataFrame({"frame": frames[0]["frame"].iloc[:n].to_numpy()} if n else {})
+    if n:
+        cols = [c for c in frames[0].columns if c in CROWD_SUM_COLUMNS or (c.startswith("time_") and c.endswith("_s"))]
+        for c in cols:
+            rows[c] = sum(f[c].iloc[:n].to_numpy() for f in frames)
+        rows["sim_time_s"] = frames[0]["sim_time_s"].iloc[:n].to_numpy()
+        rows["max_speed_m_s"] = np.max([f["max_speed_m_s"].iloc[:n].to_numpy() for f in frames], axis=0)
+        rows["min_face_quality"] = np.min([f["min_face_quality"].iloc[:n].to_numpy() for f in frames], axis=0)
+        rows["characters"] = len(frames)
+        write_parquet_atomic(out_dir / "frames.parquet", rows)
+    order = ("completed", "interrupted", "diverged", "failed", "missing")
+    status = max((s.get("status", "missing") for s in summaries), key=lambda x: order.index(x) if x in order else 9)
+    summary = {"status": status, "characters": len(frames), **summarize(rows),
+               "message": "; ".join(f"character {i}: {s['message']}" for i, s in enumerate(summaries)
+                                    if s.get("message")),
+               "notes": summaries[0].get("notes", []) if summaries else [],
+               "character_summaries": summaries}
+    write_json_atomic(out_dir / "summary.json", summary)
+    return rows, summary
+
+
 VISIBLE_RGB = np.array([0.15, 0.35, 0.95])  # the paper's Fig. 1: visible faces blue
 HIDDEN_RGB = np.array([0.9, 0.15, 0.1])  # not visible: red, lighter where the view factor is lower
 
@@ -105,7 +150,7 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
         frames = pd.DataFrame(rows)
         if rows:
             write_parquet_atomic(out_dir / "frames.parquet", frames)
-        summary = {"status": status, "message": message, "scene": scene.name,
+        summary = {"status": status, "message": message, "scene": scene.name, "notes": list(scene.notes),
                    "frames_requested": int(n_frames), **summarize(frames)}
         if rows:
             summary["final_max_speed_m_s"] = float(rows[-1]["max_speed_m_s"])

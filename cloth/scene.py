@@ -66,6 +66,7 @@ class Scene:
     thickness: float = 0.005  # m, contact offset kept between cloth nodes and obstacles
     friction: float = 0.3  # Coulomb coefficient, cloth against obstacles
     camera: object | None = None  # a camera path (view-dependent issue), None if the scene has none
+    notes: tuple = ()  # what a reader of the results must know (e.g. an effect the scene leaves out)
 
     def __post_init__(self) -> None:
         self.effects = frozenset(self.effects)

@@ -1,4 +1,5 @@
-"""Procedural scenes: hanging_sheet, sheet_on_sphere, flag.
+"""Procedural scenes: hanging_sheet, sheet_on_sphere, flag, and the paper's character scenes
+solo_dancer, karate and multiple_dancers (a crowd: one Scene per character).
 
 Each builder takes plain parameters (no Hydra) and returns a :class:`cloth.scene.Scene`.
 World axes: z up, metres. `resolution` is the number of grid cells along the sheet's longer
@@ -91,7 +92,114 @@ def flag(material: Material, *, resolution: int = 30, width: float = 1.5, height
                  handles=[Handle(pole, Static())])
 
 
-SCENES = {"hanging_sheet": hanging_sheet, "sheet_on_sphere": sheet_on_sphere, "flag": flag}
+CHARACTER_EFFECTS = ("membrane", "bending", "gravity", "damping", "obstacles")
+
+
+def _character_scene(name, material, body, garments, *, thickness, friction, frame_time, steps_per_frame,
+                     effects, notes=()) -> Scene:
+    from .garments import merge_garments
+
+    mesh, pins = merge_garments(garments)
+    handles = [Handle(p, g.motion) for p, g in zip(pins, garments)]
+    return Scene(name=name, mesh=mesh, material=material, effects=frozenset(effects),
+                 frame_time=frame_time, steps_per_frame=steps_per_frame, obstacles=[body] if "obstacles" in effects
+                 else [], handles=handles, thickness=thickness, friction=friction, notes=tuple(notes))
+
+
+def solo_dancer(material: Material, *, resolution: int = 48, waist_radius: float = 0.18, skirt_length: float = 0.55,
+                speed: float = 1.0, spin_hz: float = 1.0, settle: float = 0.5, blend_in: float = 1.0,
+                position=(0.0, 0.0, 0.0), heading: float = 0.0, phase: float = 0.0,
+                thickness: float = 0.005, friction: float = 0.3, frame_time: float = 0.04,
+                steps_per_frame: int = 8, seed: int = 0, effects=CHARACTER_EFFECTS) -> Scene:
+    """A dancer (the mannequin's `dance` motion) in a circle skirt pinned at the waist, which
+    falls from a flat disc, drapes while the dancer stands, then flares out in the turns.
+    `resolution`: segments around the waist; `phase` (s) shifts the motion, `heading` (rad) and
+    `position` (m) place the dancer on the stage."""
+    from .character import Dance, Mannequin
+    from .garments import circle_skirt
+
+    name = "solo_dancer"
+    _check_resolution(name, resolution)
+    _check_size(name, waist_radius=waist_radius, skirt_length=skirt_length, speed=speed)
+    body = Mannequin(Dance(speed=speed, spin_hz=spin_hz, settle=settle, blend_in=blend_in),
+                     position=position, heading=heading, phase=phase)
+    skirt = circle_skirt(body, waist_radius=waist_radius, length=skirt_length, resolution=max(int(resolution), 3))
+    return _character_scene(name, material, body, [skirt], thickness=thickness, friction=friction,
+                            frame_time=frame_time, steps_per_frame=steps_per_frame, effects=effects)
+
+
+LAYERS_APART_NOTE = ("karate: the two skirts are kept apart (6 cm) and do not collide with each other: "
+                     "cloth-cloth contact needs self-collision (issue 6), not implemented yet")
+
+
+def karate(material: Material, *, resolution: int = 48, inner_radius: float = 0.26, inner_length: float = 0.55,
+           outer_radius: float = 0.32, outer_length: float = 0.35, speed: float = 1.0, settle: float = 0.5,
+           blend_in: float = 1.0, position=(0.0, 0.0, 0.0), heading: float = 0.0, phase: float = 0.0,
+           thickness: float = 0.005, friction: float = 0.3, frame_time: float = 0.04, steps_per_frame: int = 8,
+           seed: int = 0, effects=CHARACTER_EFFECTS) -> Scene:
+    """A karateka (opening pose with the fists forward, stance, punches, a front kick, a half
+    turn) in a layered outfit: a long wide skirt (hakama, a tube with a seam at the back) pinned at
+    the hips under a shorter, wider overskirt (also a tube with a seam) pinned 6 cm higher. The
+    layers overlap in height but are kept apart (see LAYERS_APART_NOTE). `resolution`: segments
+    around each garment."""
+    from .character import Karate, Mannequin
+    from .garments import tube_skirt
+
+    name = "karate"
+    _check_resolution(name, resolution)
+    _check_size(name, inner_radius=inner_radius, inner_length=inner_length, outer_radius=outer_radius,
+                outer_length=outer_length, speed=speed)
+    if outer_radius <= inner_radius:
+        raise SceneError(f"scene {name!r}: outer_radius ({outer_radius} m) must exceed inner_radius "
+                         f"({inner_radius} m): the overskirt is the outer layer")
+    body = Mannequin(Karate(speed=speed, settle=settle, blend_in=blend_in), position=position, heading=heading,
+                     phase=phase)
+    n = max(int(resolution), 3)
+    garments = [tube_skirt(body, waist_radius=inner_radius, length=inner_length, resolution=n, waist_height=0.06),
+                tube_skirt(body, waist_radius=outer_radius, length=outer_length, resolution=n, waist_height=0.12)]
+    return _character_scene(name, material, body, garments, thickness=thickness, friction=friction,
+                            frame_time=frame_time, steps_per_frame=steps_per_frame, effects=effects,
+                            notes=[LAYERS_APART_NOTE])
+
+
+def crowd_placement(count: int, spacing: float, columns: int, phase_step: float, heading_step: float):
+    """(positions (count, 3), phases (count,), headings (count,)) of a crowd on a stage: rows of
+    `columns` dancers `spacing` metres apart, centred on the origin, rows behind each other (+y)."""
+    i = np.arange(int(count))
+    col, row = i % columns, i // columns
+    n_rows = (int(count) + columns - 1) // columns
+    x = (col - (min(count, columns) - 1) / 2) * spacing
+    y = (row - (n_rows - 1) / 2) * spacing
+    return np.column_stack([x, y, np.zeros(len(i))]), i * phase_step, i * heading_step
+
+
+def multiple_dancers(material: Material, *, character: int = 0, count: int = 10, spacing: float = 3.0,
+                     columns: int = 5, phase_step: float = 0.37, heading_step: float = 0.6, **dancer) -> Scene:
+    """Character `character` of a crowd of `count` dancers on a stage (the paper's ten dancers):
+    exactly `solo_dancer` placed at its spot, with its own phase and heading so the crowd is not
+    in lock-step. A crowd run simulates every character as its own Simulation (see
+    experiments/run.py); `crowd_size(params)` gives the count."""
+    name = "multiple_dancers"
+    if int(count) < 1 or int(columns) < 1:
+        raise SceneError(f"scene {name!r}: count and columns must be >= 1, got {count}, {columns}")
+    if not 0 <= int(character) < int(count):
+        raise SceneError(f"scene {name!r}: character must be in [0, {int(count) - 1}], got {character}")
+    _check_size(name, spacing=spacing)
+    for key in ("position", "phase", "heading"):
+        if key in dancer:
+            raise SceneError(f"scene {name!r}: {key} is set per character by the crowd layout")
+    pos, phases, headings = crowd_placement(count, spacing, columns, phase_step, heading_step)
+    k = int(character)
+    scene = solo_dancer(material, position=tuple(pos[k]), phase=float(phases[k]), heading=float(headings[k]),
+                        **dancer)
+    scene.name = f"{name}/dancer_{k:02d}"
+    return scene
+
+
+CROWDS = {"multiple_dancers"}  # scenes whose builder makes one character of a crowd (parameter `character`)
+
+SCENES = {"hanging_sheet": hanging_sheet, "sheet_on_sphere": sheet_on_sphere, "flag": flag,
+          "solo_dancer": solo_dancer, "karate": karate, "multiple_dancers": multiple_dancers}
 
 
 def build_scene(name: str, material: Material, **params) -> Scene:
@@ -100,7 +208,10 @@ def build_scene(name: str, material: Material, **params) -> Scene:
         raise SceneError(f"unknown scene {name!r}; known scenes: {sorted(SCENES)}")
     builder = SCENES[name]
     import inspect
-    allowed = {p for p in inspect.signature(builder).parameters if p != "material"}
+    allowed = {p for p in inspect.signature(builder).parameters if p not in ("material", "dancer")}
+    if name in CROWDS:
+        allowed |= {p for p in inspect.signature(solo_dancer).parameters
+                    if p not in ("material", "position", "phase", "heading")}
     unknown = set(params) - allowed
     if unknown:
         raise SceneError(f"scene {name!r}: unknown parameter(s) {sorted(unknown)}; allowed: {sorted(allowed)}")

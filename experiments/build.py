@@ -99,12 +99,28 @@ def build_remesher(mode_cfg: DictConfig, sizing_overrides: dict, camera=None, fr
     return ViewDependentRemesher(**common, camera=camera, view=view, frame_time=frame_time)
 
 
-def build_simulation(cfg: DictConfig):
-    """Return (Simulation, n_frames); raises ConfigError naming the key of a bad value."""
+def crowd_size(cfg: DictConfig) -> int | None:
+    """Number of characters of a crowd scene (each its own Simulation), None for other scenes."""
+    from cloth.scenes import CROWDS
+
+    if cfg.scene.name not in CROWDS:
+        return None
+    count = cfg.scene.params.get("count", 10)
+    _require(isinstance(count, int) and count >= 1, "scene.params.count", f"must be an integer >= 1, got {count!r}")
+    jobs = cfg.get("crowd_jobs", 1)
+    _require(isinstance(jobs, int) and jobs >= 1, "crowd_jobs", f"must be an integer >= 1, got {jobs!r}")
+    return count
+
+
+def build_simulation(cfg: DictConfig, character: int | None = None):
+    """Return (Simulation, n_frames); raises ConfigError naming the key of a bad value.
+
+    For a crowd scene (cloth.scenes.CROWDS) this is the simulation of one `character` (0 if None).
+    """
     from cloth.linsolve import SolverOptions
     from cloth.mesh import MeshError
     from cloth.scene import SceneError
-    from cloth.scenes import SCENES, build_scene
+    from cloth.scenes import CROWDS, SCENES, build_scene
     from cloth.simulation import Simulation
 
     _require(isinstance(cfg.get("frames"), int) and cfg.frames >= 1, "frames", f"must be an integer >= 1, got {cfg.get('frames')!r}")
@@ -128,6 +144,9 @@ def build_simulation(cfg: DictConfig):
              f"must be an integer, got {params.get('steps_per_frame')!r}")
     params["effects"] = tuple(cfg.scene.effects)
     params["seed"] = int(cfg.seed)
+    if name in CROWDS:
+        crowd_size(cfg)
+        params["character"] = int(character or 0)
     material = build_material(cfg)
     try:
         solver = SolverOptions(method=cfg.solver.method, tolerance=float(cfg.solver.tolerance),

@@ -3,6 +3,11 @@
 Everything is built and checked from the config before any work starts; a config error stops
 with one message naming the key. The run folder (Hydra's output dir) receives the resolved
 config, manifest.json, frames.parquet, summary.json, recording.rrd and optional OBJ frames.
+
+A crowd scene (``scene=multiple_dancers``) runs each character as its own simulation in its own
+sub-folder (``dancer_00`` ...), `crowd_jobs` at a time in parallel processes (joblib), all under
+the one camera; the run folder then holds the combined records (sums over the characters, see
+cloth.runner.combine_crowd). Each character's results are those of running it alone.
 """
 
 from __future__ import annotations
@@ -13,23 +18,76 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from experiments.build import ConfigError, build_simulation
+from experiments.build import ConfigError, build_simulation, crowd_size
+
+
+def _recorder(cfg: DictConfig, out_dir: Path, root: str = "world", recording_id=None, log_camera=True):
+    if not cfg.output.rerun:
+        return None
+    from cloth.io.recorder import RerunRecorder
+    return RerunRecorder(out_dir / "recording.rrd", app_id=f"cloth_{cfg.scene.name}", root=root,
+                         recording_id=recording_id, log_camera=log_camera)
+
+
+def _write_inputs(cfg: DictConfig, out_dir: Path) -> None:
+    from cloth.io.manifest import environment_manifest, write_json_atomic
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    write_json_atomic(out_dir / "manifest.json", environment_manifest(int(cfg.seed)))
+
+
+def run_character(config_yaml: str, character: int, out_dir: str, recording_id: str) -> dict:
+    """One character of a crowd, in a worker process: rebuild it from the resolved config and run."""
+    from cloth.runner import run
+    from cloth.simulation import SimulationDiverged
+
+    cfg = OmegaConf.create(config_yaml)
+    sim, n_frames = build_simulation(cfg, character=character)
+    out = Path(out_dir)
+    recorder = _recorder(cfg, out, root=f"world/dancer_{character:02d}", recording_id=recording_id,
+                         log_camera=character == 0)
+    try:
+        return run(sim, n_frames, out, recorder=recorder, obj_every=int(cfg.output.obj_every), progress=False)
+    except SimulationDiverged:  # its summary says so; the other characters go on
+        import json
+        return json.loads((out / "summary.json").read_text())
+
+
+def run_crowd(cfg: DictConfig, out_dir: Path, count: int) -> dict:
+    """Every character of a crowd in parallel processes, then the combined records."""
+    import uuid
+
+    from joblib import Parallel, delayed
+
+    from cloth.runner import combine_crowd
+
+    build_simulation(cfg, character=0)  # every config check, before any output
+    _write_inputs(cfg, out_dir)
+    config_yaml = OmegaConf.to_yaml(cfg, resolve=True)
+    dirs = [out_dir / f"dancer_{i:02d}" for i in range(count)]
+    recording_id = str(uuid.uuid4())
+    jobs = min(int(cfg.crowd_jobs), count)
+    work = (delayed(run_character)(config_yaml, i, str(d), recording_id) for i, d in enumerate(dirs))
+    if jobs == 1:
+        for job in work:
+            job[0](*job[1], **job[2])
+    else:
+        Parallel(n_jobs=jobs, backend="loky")(work)
+    _, summary = combine_crowd(dirs, out_dir)
+    return summary
 
 
 def run_from_config(cfg: DictConfig, out_dir: Path) -> dict:
     """Validate, build, run and record; returns the summary (raises ConfigError first if bad)."""
-    from cloth.io.manifest import environment_manifest, write_json_atomic
     from cloth.runner import run
 
+    count = crowd_size(cfg)
+    if count is not None:
+        return run_crowd(cfg, out_dir, count)
     sim, n_frames = build_simulation(cfg)  # every config check happens here, before any output
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
-    write_json_atomic(out_dir / "manifest.json", environment_manifest(int(cfg.seed)))
-    recorder = None
-    if cfg.output.rerun:
-        from cloth.io.recorder import RerunRecorder
-        recorder = RerunRecorder(out_dir / "recording.rrd", app_id=f"cloth_{cfg.scene.name}")
-    return run(sim, n_frames, out_dir, recorder=recorder, obj_every=int(cfg.output.obj_every),
+    _write_inputs(cfg, out_dir)
+    return run(sim, n_frames, out_dir, recorder=_recorder(cfg, out_dir), obj_every=int(cfg.output.obj_every),
                progress=bool(cfg.output.progress))
 
 
@@ -47,10 +105,18 @@ def main(cfg: DictConfig) -> None:
         print(f"run stopped: {exc}\nframes written so far are in {out_dir}", file=sys.stderr)
         sys.exit(3)
     print(f"run folder: {out_dir}")
+    if "characters" in summary:
+        print(f"  crowd of {summary['characters']} characters (one sub-folder each); status: {summary['status']}")
     print(f"  frames: {summary['frames_completed']}  faces: {summary.get('faces_mean', 0):.0f}  "
           f"mean time per frame: {summary.get('wall_s_mean', 0):.3f} s")
+    for note in summary.get("notes", []):
+        print(f"  note: {note}")
     if cfg.output.rerun:
-        print(f"  recording: {out_dir / 'recording.rrd'}  (view with: rerun {out_dir / 'recording.rrd'})")
+        rrd = "dancer_*/recording.rrd" if "characters" in summary else "recording.rrd"
+        print(f"  recording: {out_dir / rrd}  (view with: rerun {out_dir / rrd})")
+    if summary.get("status") not in (None, "completed"):
+        print(f"  status: {summary['status']}: {summary.get('message', '')}", file=sys.stderr)
+        sys.exit(3)
 
 
 if __name__ == "__main__":

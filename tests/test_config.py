@@ -30,7 +30,7 @@ def _cfg(*overrides):
 def test_every_scene_and_scale_builds(scene, scale):
     sim, frames = build_simulation(_cfg(f"scene={scene}", f"scale={scale}"))
     assert frames >= 1 and sim.mesh.n_faces > 0
-    assert sim.scene.name == scene
+    assert sim.scene.name.split("/")[0] == scene  # a crowd names its character: scene/dancer_00
 
 
 @pytest.mark.parametrize("material", MATERIALS)

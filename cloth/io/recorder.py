@@ -51,21 +51,28 @@ def _rgba(colors) -> np.ndarray:
 
 
 class RerunRecorder(Recorder):
-    """Streams a Rerun recording to an .rrd file as it goes (a crash keeps what was logged)."""
+    """Streams a Rerun recording to an .rrd file as it goes (a crash keeps what was logged).
 
-    def __init__(self, path, app_id: str = "cloth"):
+    A crowd writes one file per character with a shared `recording_id` and its own `root` entity
+    (``world/dancer_03``), so that the viewer merges the files into one scene; only the character
+    with `log_camera` logs the shared camera.
+    """
+
+    def __init__(self, path, app_id: str = "cloth", root: str = "world", recording_id: str | None = None,
+                 log_camera: bool = True):
         import rerun as rr
 
         self.rr = rr
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.rec = rr.RecordingStream(app_id)
+        self.root, self.log_camera = root, log_camera
+        self.rec = rr.RecordingStream(app_id, recording_id=recording_id)
         self.rec.save(str(self.path))
         self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         self._static_obstacles: set[str] = set()
 
     def log_static(self, name, vertices, faces, color=None):
-        self.rec.log(f"world/{name}", self.rr.Mesh3D(
+        self.rec.log(f"{self.root}/{name}", self.rr.Mesh3D(
             vertex_positions=np.asarray(vertices, np.float32), triangle_indices=np.asarray(faces, np.uint32),
             albedo_factor=color or OBSTACLE_COLOR), static=True)
 
@@ -75,13 +82,13 @@ class RerunRecorder(Recorder):
         self.rec.set_time("sim_time", duration=float(time_s))
         x = mesh.vert_x()
         if face_colors is None:
-            self.rec.log("world/cloth", rr.Mesh3D(
+            self.rec.log(f"{self.root}/cloth", rr.Mesh3D(
                 vertex_positions=x.astype(np.float32), triangle_indices=mesh.face_verts.astype(np.uint32),
                 albedo_factor=CLOTH_COLOR))
         else:  # unshared vertices, so that each face carries its own colour
             pos = x[mesh.face_verts].reshape(-1, 3).astype(np.float32)
             col = np.repeat(_rgba(face_colors), 3, axis=0)
-            self.rec.log("world/cloth", rr.Mesh3D(
+            self.rec.log(f"{self.root}/cloth", rr.Mesh3D(
                 vertex_positions=pos, triangle_indices=np.arange(pos.shape[0], dtype=np.uint32).reshape(-1, 3),
                 vertex_colors=col))
         for ob in obstacles:
@@ -89,12 +96,12 @@ class RerunRecorder(Recorder):
             if not moving and ob.name in self._static_obstacles:
                 continue
             v, f = ob.to_mesh()
-            self.rec.log(f"world/obstacles/{ob.name}", rr.Mesh3D(
+            self.rec.log(f"{self.root}/obstacles/{ob.name}", rr.Mesh3D(
                 vertex_positions=np.asarray(v, np.float32), triangle_indices=np.asarray(f, np.uint32),
                 albedo_factor=OBSTACLE_COLOR), static=not moving)
             if not moving:
                 self._static_obstacles.add(ob.name)
-        if camera is not None:
+        if camera is not None and self.log_camera:
             self._log_camera(camera)
 
     def _log_camera(self, cam):

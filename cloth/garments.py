@@ -1,0 +1,168 @@
+"""Procedural garments in material space, put on the mannequin through pinned nodes.
+
+A garment's material coordinates are its flat pattern (metres) and its world positions start
+isometric to the pattern (no initial strain) and clear of the body; the nodes of its waistband
+or collar are pinned to a joint of the mannequin (a :class:`cloth.scene.Handle` whose motion is
+that joint's, :class:`JointMotion`).
+
+* `circle_skirt`: an annulus (inner radius = waist, width = length) that starts as a flat disc
+  around the waist, falls and drapes. No seam.
+* `tube_skirt`: a rectangle of width 2 pi r rolled into a vertical tube around the hips, its
+  two side edges joined by a seam (every seam node has two verts), pinned at the waist.
+  Two of them, one over the other, make the layered outfit of the karate scene.
+
+Garments of one character are merged into one Mesh (`merge_garments`); the connected components
+do not interact with each other until self-collision lands (see the karate scene's notes).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .character import Mannequin, forward_kinematics
+from .mesh import Mesh, MeshError, grid_mesh
+
+
+def _heading(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+@dataclass
+class JointMotion:
+    """The rigid motion of one joint of a placed mannequin, as a handle motion: pose(t) -> (R, p)."""
+
+    body: Mannequin
+    joint: str
+
+    def pose(self, t: float):
+        R, p = forward_kinematics(self.body.motion.pose(t + self.body.phase))[self.joint]
+        Rh = _heading(self.body.place_heading)
+        return Rh @ R, Rh @ p + self.body.offset
+
+
+@dataclass
+class Garment:
+    """A garment on a body: its mesh, the nodes pinned to the body and the joint they follow."""
+
+    name: str
+    mesh: Mesh
+    pinned: np.ndarray  # (k,) node indices of the waistband / collar
+    motion: JointMotion
+
+
+def _joint_center(body: Mannequin, joint: str, height: float) -> np.ndarray:
+    """World position of `joint` at t = 0, raised by `height` metres."""
+    _, p = forward_kinematics(body.motion.pose(body.phase))[joint]
+    return _heading(body.place_heading) @ p + body.offset + np.array([0.0, 0.0, height])
+
+
+def annulus_mesh(inner_radius: float, width: float, n_around: int, n_across: int,
+                 center=(0.0, 0.0, 0.0)) -> Mesh:
+    """A flat annulus in the plane z = center[2]: material coordinates (r cos t, r sin t), world
+    positions the same around `center`. Node i * n_around + j is on ring i (radius
+    inner_radius + i width / n_across) at angle 2 pi j / n_around; the ring closes on itself.
+    """
+    if inner_radius <= 0 or width <= 0:
+        raise MeshError(f"annulus radii must be > 0 m, got inner {inner_radius}, width {width}")
+    if n_around < 3 or n_across < 1:
+        raise MeshError(f"annulus needs >= 3 segments around and >= 1 across, got {n_around}, {n_across}")
+    r = inner_radius + width * np.arange(n_across + 1) / n_across
+    t = 2 * np.pi * np.arange(n_around) / n_around
+    R, T = np.meshgrid(r, t, indexing="ij")
+    u = np.column_stack([(R * np.cos(T)).ravel(), (R * np.sin(T)).ravel()])
+    i, j = np.meshgrid(np.arange(n_across), np.arange(n_around), indexing="ij")
+    i, j = i.ravel(), j.ravel()
+    a, b = i * n_around + j, i * n_around + (j + 1) % n_around
+    c, d = a + n_around, b + n_around
+    flip = ((i + j) % 2 == 1)[:, None]  # alternate the diagonal: no preferred shear
+    fa = np.where(flip, np.column_stack([a, c, b]), np.column_stack([a, d, b]))  # counter-clockwise
+    fb = np.where(flip, np.column_stack([b, c, d]), np.column_stack([a, c, d]))
+    faces = np.empty((2 * a.size, 3), dtype=np.int32)
+    faces[0::2], faces[1::2] = fa, fb
+    x = np.column_stack([u, np.zeros(len(u))]) + np.asarray(center, float)
+    n = len(u)
+    return Mesh(node_x=x, node_v=np.zeros((n, 3)), node_pinned=np.zeros(n, dtype=bool), vert_u=u,
+                vert_node=np.arange(n, dtype=np.int32), face_verts=faces)
+
+
+def tube_mesh(radius: float, length: float, n_around: int, n_along: int, top_center=(0.0, 0.0, 0.0),
+              seam_angle: float = -np.pi / 2) -> Mesh:
+    """A vertical tube of `radius` hanging `length` below `top_center`, rolled from a flat
+    rectangle of 2 pi radius x length with a seam: the rectangle's two side edges (u = 0 and
+    u = 2 pi radius) have their own verts but share nodes. The seam is at `seam_angle` (rad about z;
+    the default -pi/2 is the back of a character facing +y). Nodes j * n_around + i are on row j
+    (j = 0 the hem, j = n_along the top) at angle seam_angle + 2 pi i / n_around.
+    """
+    if radius <= 0 or length <= 0:
+        raise MeshError(f"tube radius and length must be > 0 m, got {radius}, {length}")
+    if n_around < 3 or n_along < 1:
+        raise MeshError(f"tube needs >= 3 segments around and >= 1 along, got {n_around}, {n_along}")
+    flat = grid_mesh(2 * np.pi * radius, length, n_around, n_along)
+    i, j = np.divmod(np.arange(flat.n_verts), n_around + 1)[::-1]  # vert = j (n_around + 1) + i
+    vert_node = (j * n_around + i % n_around).astype(np.int32)
+    n = (n_along + 1) * n_around
+    angle = seam_angle + flat.vert_u[:, 0] / radius
+    x = np.empty((n, 3))
+    x[vert_node] = np.column_stack([radius * np.cos(angle), radius * np.sin(angle),
+                                    flat.vert_u[:, 1] - length]) + np.asarray(top_center, float)
+    return Mesh(node_x=x, node_v=np.zeros((n, 3)), node_pinned=np.zeros(n, dtype=bool), vert_u=flat.vert_u,
+                vert_node=vert_node, face_verts=flat.face_verts)
+
+
+def _segments_across(length: float, circumference: float, n_around: int) -> int:
+    """Segments along a garment's length that keep its faces near-equilateral."""
+    return max(1, int(round(length / (circumference / n_around))))
+
+
+def circle_skirt(body: Mannequin, *, waist_radius: float = 0.18, length: float = 0.55, resolution: int = 48,
+                 waist_joint: str = "abdomen", waist_height: float = 0.06) -> Garment:
+    """A circle skirt around `body`'s waist: a flat disc (annulus) at the waist at t = 0.
+
+    `resolution` segments around; the number across keeps faces near-equilateral at mid-length.
+    The waistband ring sits `waist_height` above the `waist_joint` and is pinned to it.
+    """
+    n_around = int(resolution)
+    n_across = _segments_across(length, 2 * np.pi * (waist_radius + length / 2), n_around)
+    mesh = annulus_mesh(waist_radius, length, n_around, n_across, _joint_center(body, waist_joint, waist_height))
+    return Garment("circle_skirt", mesh, np.arange(n_around), JointMotion(body, waist_joint))
+
+
+def tube_skirt(body: Mannequin, *, waist_radius: float = 0.26, length: float = 0.55, resolution: int = 48,
+               waist_joint: str = "pelvis", waist_height: float = 0.06) -> Garment:
+    """A straight wide skirt (a tube with a seam at the back, like a hakama) hanging from a
+    waistband pinned `waist_height` above the `waist_joint`. Its radius must clear the hips
+    (0.19 m from the body's axis); a body whose arms hang at its sides has its hands inside such a
+    tube, so the motion must hold the arms up (the karate motion's opening pose does)."""
+    n_around = int(resolution)
+    n_along = _segments_across(length, 2 * np.pi * waist_radius, n_around)
+    mesh = tube_mesh(waist_radius, length, n_around, n_along, _joint_center(body, waist_joint, waist_height),
+                     seam_angle=body.place_heading - np.pi / 2)
+    return Garment("tube_skirt", mesh, n_along * n_around + np.arange(n_around), JointMotion(body, waist_joint))
+
+
+GARMENTS = {"circle_skirt": circle_skirt, "tube_skirt": tube_skirt}
+
+
+def merge_garments(garments: list[Garment]) -> tuple[Mesh, list[np.ndarray]]:
+    """One Mesh holding every garment (disjoint components), and each garment's pinned nodes in it."""
+    if not garments:
+        raise MeshError("a character needs at least one garment")
+    x, v, u, vn, fv, pins = [], [], [], [], [], []
+    n_off = v_off = 0
+    for g in garments:
+        m = g.mesh
+        x.append(m.node_x)
+        v.append(m.node_v)
+        u.append(m.vert_u)
+        vn.append(m.vert_node + n_off)
+        fv.append(m.face_verts + v_off)
+        pins.append(np.asarray(g.pinned) + n_off)
+        n_off += m.n_nodes
+        v_off += m.n_verts
+    node_x = np.vstack(x)
+    mesh = Mesh(node_x=node_x, node_v=np.vstack(v), node_pinned=np.zeros(len(node_x), dtype=bool),
+                vert_u=np.vstack(u), vert_node=np.concatenate(vn), face_verts=np.vstack(fv))
+    return mesh, pins

@@ -1,0 +1,195 @@
+"""Garments and the character scenes: patterns are isometric to their start shape, the tube's
+seam joins its two side edges, garments start clear of the body, solo_dancer stays finite and
+out of the body at the end of every step, karate keeps its seams through adaptive remeshing, and
+a crowd's records are the sums of its characters' records, each the same as running it alone."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+from cloth.character import Dance, Karate, Mannequin
+from cloth.garments import annulus_mesh, circle_skirt, merge_garments, tube_mesh, tube_skirt
+from cloth.mesh import MeshError
+from cloth.scenes import crowd_placement
+from experiments.build import ConfigError, build_simulation
+from experiments.run import run_from_config
+from tests.test_config import CONF
+
+ROUNDOFF = 1e-9
+# Pinned waistband nodes follow the waist joint exactly; a free node may sit anywhere outside the
+# body. Contact keeps nodes at the thickness (5 mm); at the end of a step a node may be slightly
+# inside that offset but never inside the body itself (phi < 0).
+INSIDE_BODY = 0.0
+
+
+def _cfg(*overrides):
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        return compose(config_name="config", overrides=list(overrides))
+
+
+def _material_edge_lengths(mesh):
+    fv = mesh.face_verts
+    u = mesh.vert_u
+    return np.concatenate([np.linalg.norm(u[fv[:, (k + 1) % 3]] - u[fv[:, k]], axis=1) for k in range(3)])
+
+
+def _world_face_edge_lengths(mesh):
+    x = mesh.node_x[mesh.vert_node[mesh.face_verts]]
+    return np.concatenate([np.linalg.norm(x[:, (k + 1) % 3] - x[:, k], axis=1) for k in range(3)])
+
+
+@pytest.mark.parametrize("make", [lambda: annulus_mesh(0.2, 0.5, 24, 5, (0, 0, 1)),
+                                  lambda: tube_mesh(0.25, 0.6, 20, 7, (0, 0, 1.2))])
+def test_patterns_start_isometric_to_their_material(make):
+    mesh = make()
+    mat, world = _material_edge_lengths(mesh), _world_face_edge_lengths(mesh)
+    if mesh.n_verts == mesh.n_nodes:  # the annulus lies flat: exact
+        assert np.allclose(mat, world, atol=ROUNDOFF)
+    else:  # rolled: an edge of material length L across an arc of radius r has chord 2 r sin(L / 2r)
+        r = 0.25
+        du = np.concatenate([np.abs(mesh.vert_u[mesh.face_verts[:, (k + 1) % 3], 0]
+                                    - mesh.vert_u[mesh.face_verts[:, k], 0]) for k in range(3)])
+        dv = np.concatenate([np.abs(mesh.vert_u[mesh.face_verts[:, (k + 1) % 3], 1]
+                                    - mesh.vert_u[mesh.face_verts[:, k], 1]) for k in range(3)])
+        chord = np.hypot(2 * r * np.sin(du / (2 * r)), dv)
+        assert np.allclose(world, chord, atol=1e-12)
+    assert np.all(mesh.face_area > 0)
+
+
+def test_tube_seam_joins_the_side_edges():
+    n_around, n_along, r, L = 16, 5, 0.3, 0.7
+    mesh = tube_mesh(r, L, n_around, n_along)
+    assert mesh.n_nodes == n_around * (n_along + 1)
+    assert mesh.n_verts == (n_around + 1) * (n_along + 1)  # one extra vert per row: the seam
+    verts_per_node = np.bincount(mesh.vert_node, minlength=mesh.n_nodes)
+    assert np.count_nonzero(verts_per_node == 2) == n_along + 1
+    assert np.isclose(mesh.face_area.sum(), 2 * np.pi * r * L)
+    # closed around: only the hem and the top ring are boundary
+    assert np.count_nonzero(mesh.node_boundary) == 2 * n_around
+    with pytest.raises(MeshError, match="radius"):
+        tube_mesh(0.0, 1.0, 8, 2)
+
+
+@pytest.mark.parametrize("body, garments", [
+    (Mannequin(Dance()), [circle_skirt]),
+    (Mannequin(Dance(), position=(3.0, -1.0, 0.0), heading=1.1, phase=0.7), [circle_skirt]),
+    (Mannequin(Karate()), [tube_skirt, lambda b: tube_skirt(b, waist_radius=0.32, waist_height=0.12)]),
+])
+def test_garments_start_clear_of_the_body_and_pinned_to_it(body, garments):
+    gs = [g(body) for g in garments]
+    mesh, pins = merge_garments(gs)
+    phi, _, _ = body.query(mesh.node_x)
+    assert phi.min() > 0.005  # clear of the body by more than the contact thickness
+    for g, p in zip(gs, pins):  # the waistband / collar follows its joint rigidly
+        R0, p0 = g.motion.pose(0.0)
+        R1, p1 = g.motion.pose(2.3)
+        moved = (mesh.node_x[p] - p0) @ R0 @ R1.T + p1
+        d0 = np.linalg.norm(mesh.node_x[p][:, None] - mesh.node_x[p][None], axis=2)
+        d1 = np.linalg.norm(moved[:, None] - moved[None], axis=2)
+        assert np.allclose(d0, d1, atol=ROUNDOFF)
+        assert not np.allclose(moved, mesh.node_x[p])
+
+
+def test_scene_configs_bring_their_camera_and_length():
+    cfg = _cfg("scene=solo_dancer")
+    assert cfg.frames == 150 and cfg.camera.type == "cuts"
+    assert _cfg("scene=solo_dancer", "camera=none").camera.type == "none"
+    assert _cfg("scene=solo_dancer", "frames=7").frames == 7
+    assert _cfg("scene=sheet_on_sphere").camera.type == "none" and _cfg("scene=sheet_on_sphere").frames == 60
+    for scene in ("karate", "multiple_dancers"):
+        path = build_simulation(_cfg(f"scene={scene}"))[0].scene.camera
+        assert len(path.cuts) >= 1  # at least one jump cut
+
+
+@pytest.mark.parametrize("override, key", [
+    ("scene.params.count=0", "scene.params.count"),
+    ("crowd_jobs=0", "crowd_jobs"),
+    ("+scene.params.phase=0.3", "phase"),
+])
+def test_crowd_config_errors_name_the_key(override, key):
+    with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
+        build_simulation(_cfg("scene=multiple_dancers", override))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scene", ["solo_dancer", "karate"])
+def test_60_frames_stay_finite_and_out_of_the_body(scene):
+    sim, _ = build_simulation(_cfg(f"scene={scene}", "camera=none"))
+    body = sim.scene.obstacles[0]
+    free = ~sim.mesh.node_pinned
+    closest = np.inf
+    step = sim.step
+
+    def checked_step(timings, stats):
+        nonlocal closest
+        step(timings, stats)
+        body.set_time(sim.time)
+        phi, _, _ = body.query(sim.mesh.node_x)
+        assert phi.min() >= INSIDE_BODY, f"node inside the body at t = {sim.time:.3f} s: phi = {phi.min():.4f} m"
+        closest = min(closest, phi[free].min())
+
+    sim.step = checked_step
+    fastest = 0.0
+    for _ in range(60):
+        fastest = max(fastest, sim.advance_frame()["max_speed_m_s"])
+        assert np.all(np.isfinite(sim.mesh.node_x)) and np.all(np.isfinite(sim.mesh.node_v))
+    assert sim.steps_taken == 60 * 8
+    assert fastest > 0.5  # the cloth moves with the body (m/s), it is not stuck
+    if scene == "karate":  # the stance and the kick push the skirts: contact is exercised, not avoided
+        assert closest < 2 * sim.scene.thickness
+
+
+@pytest.mark.slow
+def test_karate_keeps_its_seams_through_adaptive_remeshing():
+    sim, _ = build_simulation(_cfg("scene=karate", "mode=adaptive", "camera=none"))
+    seam_nodes = np.count_nonzero(np.bincount(sim.mesh.vert_node) == 2)
+    for _ in range(5):
+        sim.advance_frame()
+    mesh = sim.mesh
+    assert np.all(np.isfinite(mesh.node_x))
+    assert mesh.n_verts > mesh.n_nodes  # seams are still there
+    # the remesher never removes seam nodes; it may add some by splitting seam edges
+    assert np.count_nonzero(np.bincount(mesh.vert_node) == 2) >= seam_nodes
+    assert LAYERS_NOTE in " ".join(sim.scene.notes)
+
+
+LAYERS_NOTE = "self-collision"
+
+
+def _records(path):
+    return pd.read_parquet(path / "frames.parquet")
+
+
+@pytest.mark.slow
+def test_crowd_records_are_sums_and_characters_match_running_alone(tmp_path):
+    frames, count = 3, 2
+    common = [f"frames={frames}", "output.rerun=false", f"output.obj_every={frames}", "mode=viewdep",
+              "scale=small"]
+    crowd_dir = tmp_path / "crowd"
+    summary = run_from_config(_cfg("scene=multiple_dancers", f"scene.params.count={count}", "crowd_jobs=2",
+                                   *common), crowd_dir)
+    assert summary["status"] == "completed" and summary["characters"] == count
+    total = _records(crowd_dir)
+    parts = [_records(crowd_dir / f"dancer_{i:02d}") for i in range(count)]
+    for col in ("faces", "verts", "nodes", "wall_s", "faces_in_view", "time_remesh_s"):
+        assert np.allclose(total[col], sum(p[col] for p in parts), rtol=ROUNDOFF), col
+    assert summary["faces_mean"] == pytest.approx(total["faces"].mean())
+    assert json.loads((crowd_dir / "summary.json").read_text())["character_summaries"][1]["status"] == "completed"
+
+    # character 1 alone: solo_dancer placed where the crowd puts it, same camera
+    cfg = OmegaConf.load(crowd_dir / "config.yaml")
+    pos, phases, headings = crowd_placement(count, cfg.scene.params.spacing, cfg.scene.params.columns,
+                                            cfg.scene.params.phase_step, cfg.scene.params.heading_step)
+    alone = tmp_path / "alone"
+    run_from_config(_cfg("scene=solo_dancer", "camera=crowd_shots", *common,
+                         f"+scene.params.position=[{pos[1][0]},{pos[1][1]},{pos[1][2]}]",
+                         f"+scene.params.phase={phases[1]}", f"+scene.params.heading={headings[1]}"), alone)
+    a, b = _records(alone), parts[1]
+    same = [c for c in a.columns if not c.startswith("time_") and c != "wall_s"]
+    pd.testing.assert_frame_equal(a[same], b[same])
+    obj = f"obj/frame_{frames:05d}.obj"
+    assert (alone / obj).read_text() == (crowd_dir / "dancer_01" / obj).read_text()
