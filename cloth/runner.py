@@ -101,8 +101,20 @@ def _view(sim):
     return cam, colors
 
 
+def write_still(sim, path: Path) -> Path:
+    """stills/frame_NNNNN.png: the camera's view coloured by view factor and an outside view
+    with the frustum (cloth.io.stills); the scene must have a camera."""
+    from .io.stills import OBSTACLE_RGB, mesh_triangles, obstacle_triangles, render_still
+
+    camera, colors = _view(sim)
+    obstacles = sim.obstacle_set.obstacles if sim.contact is not None else ()
+    extra = [(obstacle_triangles(ob), OBSTACLE_RGB) for ob in obstacles if ob.name != "plane"]
+    return render_still(path, camera, mesh_triangles(sim.mesh), colors, extra=extra,
+                        title=f"{sim.scene.name}  frame {sim.frame}  t = {sim.time:.2f} s  {sim.mesh.n_faces} faces")
+
+
 def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None = None,
-        obj_every: int = 0, progress: bool = False) -> dict:
+        obj_every: int = 0, progress: bool = False, stills_every: int = 0) -> dict:
     """Simulate `n_frames` frames, writing records into `out_dir`; returns the summary.
 
     A diverged run (non-finite state or a node above the speed limit) stops at the frame where
@@ -130,6 +142,8 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
             recorder.log_frame(sim.frame, sim.time, sim.mesh, face_colors=colors, obstacles=obstacles, camera=camera)
             if obj_every > 0 and sim.frame % obj_every == 0:
                 save_obj(out_dir / "obj" / f"frame_{sim.frame:05d}.obj", sim.mesh)
+            if stills_every > 0 and sim.frame % stills_every == 0:
+                write_still(sim, out_dir / "stills" / f"frame_{sim.frame:05d}.png")
             rows.append(row)
             write_parquet_atomic(out_dir / "frames.parquet", pd.DataFrame(rows))
             io = time.perf_counter() - t0

@@ -155,6 +155,10 @@ def build_simulation(cfg: DictConfig, character: int | None = None):
         raise ConfigError(str(exc)) from None
     _require(int(cfg.output.obj_every) >= 0, "output.obj_every", f"must be >= 0, got {cfg.output.obj_every}")
     camera = build_camera(cfg)
+    stills = cfg.output.get("stills_every", 0)
+    _require(isinstance(stills, int) and stills >= 0, "output.stills_every", f"must be an integer >= 0, got {stills!r}")
+    _require(stills == 0 or camera is not None, "output.stills_every",
+             "stills are drawn from the camera: choose one with camera=<name> (conf/camera/)")
     buckling = build_buckling(cfg.mode, camera)
     try:
         scene = build_scene(name, material, **params)

@@ -48,7 +48,8 @@ def run_character(config_yaml: str, character: int, out_dir: str, recording_id: 
     recorder = _recorder(cfg, out, root=f"world/dancer_{character:02d}", recording_id=recording_id,
                          log_camera=character == 0)
     try:
-        return run(sim, n_frames, out, recorder=recorder, obj_every=int(cfg.output.obj_every), progress=False)
+        return run(sim, n_frames, out, recorder=recorder, obj_every=int(cfg.output.obj_every), progress=False,
+                   stills_every=int(cfg.output.get("stills_every", 0)))
     except SimulationDiverged:  # its summary says so; the other characters go on
         import json
         return json.loads((out / "summary.json").read_text())
@@ -88,7 +89,7 @@ def run_from_config(cfg: DictConfig, out_dir: Path) -> dict:
     sim, n_frames = build_simulation(cfg)  # every config check happens here, before any output
     _write_inputs(cfg, out_dir)
     return run(sim, n_frames, out_dir, recorder=_recorder(cfg, out_dir), obj_every=int(cfg.output.obj_every),
-               progress=bool(cfg.output.progress))
+               progress=bool(cfg.output.progress), stills_every=int(cfg.output.get("stills_every", 0)))
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")

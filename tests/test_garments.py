@@ -193,3 +193,11 @@ def test_crowd_records_are_sums_and_characters_match_running_alone(tmp_path):
     pd.testing.assert_frame_equal(a[same], b[same])
     obj = f"obj/frame_{frames:05d}.obj"
     assert (alone / obj).read_text() == (crowd_dir / "dancer_01" / obj).read_text()
+
+
+def test_stills_need_a_camera_and_are_written(tmp_path):
+    with pytest.raises(ConfigError, match=r"output\.stills_every"):
+        build_simulation(_cfg("scene=solo_dancer", "camera=none", "output.stills_every=1"))
+    run_from_config(_cfg("scene=solo_dancer", "frames=2", "output.stills_every=2", "output.rerun=false"), tmp_path)
+    assert (tmp_path / "stills" / "frame_00002.png").stat().st_size > 1000
+    assert not (tmp_path / "stills" / "frame_00001.png").exists()
