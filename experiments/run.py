@@ -69,13 +69,15 @@ def run_crowd(cfg: DictConfig, out_dir: Path, count: int) -> dict:
     dirs = [out_dir / f"dancer_{i:02d}" for i in range(count)]
     recording_id = str(uuid.uuid4())
     jobs = min(int(cfg.crowd_jobs), count)
-    work = (delayed(run_character)(config_yaml, i, str(d), recording_id) for i, d in enumerate(dirs))
-    if jobs == 1:
-        for job in work:
-            job[0](*job[1], **job[2])
-    else:
-        Parallel(n_jobs=jobs, backend="loky")(work)
-    _, summary = combine_crowd(dirs, out_dir)
+    args = [(config_yaml, i, str(d), recording_id) for i, d in enumerate(dirs)]
+    try:
+        if jobs == 1:
+            for a in args:
+                run_character(*a)
+        else:
+            Parallel(n_jobs=jobs, backend="loky")(delayed(run_character)(*a) for a in args)
+    finally:  # a failed character keeps what it wrote; the crowd's records say which one
+        _, summary = combine_crowd(dirs, out_dir)
     return summary
 
 
