@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .character import Mannequin, forward_kinematics
-from .mesh import Mesh, MeshError, grid_mesh
+from .mesh import Mesh, MeshError, grid_mesh, merge_meshes
 
 
 def _heading(angle: float) -> np.ndarray:
@@ -150,19 +150,8 @@ def merge_garments(garments: list[Garment]) -> tuple[Mesh, list[np.ndarray]]:
     """One Mesh holding every garment (disjoint components), and each garment's pinned nodes in it."""
     if not garments:
         raise MeshError("a character needs at least one garment")
-    x, v, u, vn, fv, pins = [], [], [], [], [], []
-    n_off = v_off = 0
-    for g in garments:
-        m = g.mesh
-        x.append(m.node_x)
-        v.append(m.node_v)
-        u.append(m.vert_u)
-        vn.append(m.vert_node + n_off)
-        fv.append(m.face_verts + v_off)
-        pins.append(np.asarray(g.pinned) + n_off)
-        n_off += m.n_nodes
-        v_off += m.n_verts
-    node_x = np.vstack(x)
-    mesh = Mesh(node_x=node_x, node_v=np.vstack(v), node_pinned=np.zeros(len(node_x), dtype=bool),
-                vert_u=np.vstack(u), vert_node=np.concatenate(vn), face_verts=np.vstack(fv))
+    mesh = merge_meshes([g.mesh for g in garments])
+    mesh.node_pinned[:] = False
+    offsets = np.cumsum([0] + [g.mesh.n_nodes for g in garments])[:-1]
+    pins = [np.asarray(g.pinned) + o for g, o in zip(garments, offsets)]
     return mesh, pins

@@ -248,6 +248,19 @@ def validate_arrays(mesh: Mesh) -> None:
         raise MeshError(f"vert {v} maps to out-of-range node {int(mesh.vert_node[v])} (n_nodes = {n})")
 
 
+def merge_meshes(meshes: list[Mesh]) -> Mesh:
+    """One Mesh holding the given meshes as disjoint components (nodes, verts and faces in order)."""
+    if not meshes:
+        raise MeshError("merge_meshes needs at least one mesh")
+    n_off = np.cumsum([0] + [m.n_nodes for m in meshes])[:-1]
+    v_off = np.cumsum([0] + [m.n_verts for m in meshes])[:-1]
+    return Mesh(node_x=np.vstack([m.node_x for m in meshes]), node_v=np.vstack([m.node_v for m in meshes]),
+                node_pinned=np.concatenate([m.node_pinned for m in meshes]),
+                vert_u=np.vstack([m.vert_u for m in meshes]),
+                vert_node=np.concatenate([m.vert_node + o for m, o in zip(meshes, n_off)]),
+                face_verts=np.vstack([m.face_verts + o for m, o in zip(meshes, v_off)]))
+
+
 def grid_mesh(
     width: float,
     height: float,

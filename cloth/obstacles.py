@@ -50,6 +50,28 @@ class Oscillate:
         return np.zeros(3), self.a * w * np.cos(w * t + self.phase)
 
 
+class Ramp:
+    """Translation from 0 to `displacement` between t0 and t1 along a smoothstep (3u^2 - 2u^3,
+    so the velocity starts and ends at zero), at rest before and after."""
+
+    def __init__(self, displacement, t0, t1):
+        self.d = np.asarray(displacement, dtype=np.float64)  # m
+        self.t0, self.t1 = float(t0), float(t1)  # s
+        if not self.t1 > self.t0:
+            raise ValueError(f"Ramp needs t1 > t0, got t0 = {t0}, t1 = {t1}")
+
+    def _u(self, t):
+        return min(max((t - self.t0) / (self.t1 - self.t0), 0.0), 1.0)
+
+    def pose(self, t):
+        u = self._u(t)
+        return np.eye(3), self.d * (3 * u * u - 2 * u ** 3)
+
+    def velocity(self, t):
+        u = self._u(t)
+        return np.zeros(3), self.d * (6 * u - 6 * u * u) / (self.t1 - self.t0)
+
+
 class Spin:
     """Rotation about `axis` through `center` at a constant angular velocity (rad/s)."""
 

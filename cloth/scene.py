@@ -14,7 +14,9 @@ from .material import Material
 from .mesh import Mesh
 
 # Effects a scene can declare. membrane and bending are the cloth's own elasticity; the rest act on it.
-KNOWN_EFFECTS = frozenset({"membrane", "bending", "gravity", "wind", "damping", "obstacles"})
+# self_collision: cloth-cloth contact (proximity, continuous collision detection, impact zones)
+# in every step and, in the adaptive modes, untangling of crossings after each remesh.
+KNOWN_EFFECTS = frozenset({"membrane", "bending", "gravity", "wind", "damping", "obstacles", "self_collision"})
 
 
 class SceneError(ValueError):
@@ -63,8 +65,8 @@ class Scene:
     wind: Wind | None = None
     obstacles: list = field(default_factory=list)  # cloth.obstacles.Obstacle instances
     handles: list = field(default_factory=list)  # Handle instances
-    thickness: float = 0.005  # m, contact offset kept between cloth nodes and obstacles
-    friction: float = 0.3  # Coulomb coefficient, cloth against obstacles
+    thickness: float = 0.005  # m, contact offset kept between cloth and obstacles, and between cloth layers
+    friction: float = 0.3  # Coulomb coefficient, cloth against obstacles and against itself
     camera: object | None = None  # a camera path (view-dependent issue), None if the scene has none
     notes: tuple = ()  # what a reader of the results must know (e.g. an effect the scene leaves out)
 

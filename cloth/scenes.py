@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from .material import Material
-from .mesh import grid_mesh
-from .obstacles import Plane, Sphere, Static
+from .mesh import grid_mesh, merge_meshes
+from .obstacles import Plane, Ramp, Sphere, Static
 from .scene import Handle, Scene, SceneError, Wind
 
 
@@ -90,6 +90,59 @@ def flag(material: Material, *, resolution: int = 30, width: float = 1.5, height
     return Scene(name=name, mesh=mesh, material=material, effects=frozenset(effects),
                  frame_time=frame_time, steps_per_frame=steps_per_frame, wind=wind,
                  handles=[Handle(pole, Static())])
+
+
+def layered_sheets(material: Material, *, resolution: int = 12, size: float = 0.5, layers: int = 2,
+                   spacing: float = 0.02, drop_height: float = 0.3, sphere_radius: float = 0.12,
+                   thickness: float = 0.005, friction: float = 0.3, frame_time: float = 0.04,
+                   steps_per_frame: int = 8, jitter: float = 1e-4, seed: int = 0,
+                   effects=("membrane", "bending", "gravity", "damping", "obstacles", "self_collision")) -> Scene:
+    """`layers` square sheets stacked `spacing` apart fall onto a sphere on the ground: the
+    upper sheets land on the lower ones (cloth-cloth contact between separate pieces)."""
+    name = "layered_sheets"
+    _check_resolution(name, resolution)
+    _check_size(name, size=size, spacing=spacing, drop_height=drop_height, sphere_radius=sphere_radius)
+    if int(layers) < 1:
+        raise SceneError(f"scene {name!r}: layers must be >= 1, got {layers}")
+    n = int(resolution)
+    sheets = [grid_mesh(size, size, n, n, origin=(-size / 2 + 0.01 * k, -size / 2, drop_height + k * spacing))
+              for k in range(int(layers))]
+    mesh = merge_meshes(sheets)
+    _jitter(mesh, jitter, seed)
+    obstacles = [Plane(point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0)),
+                 Sphere(center=(0.0, 0.0, sphere_radius), radius=sphere_radius)]
+    return Scene(name=name, mesh=mesh, material=material, effects=frozenset(effects),
+                 frame_time=frame_time, steps_per_frame=steps_per_frame,
+                 obstacles=obstacles, thickness=thickness, friction=friction)
+
+
+def crushed_sheet(material: Material, *, resolution: int = 24, length: float = 0.8, width: float = 0.25,
+                  drop_height: float = 0.02, tilt_deg: float = 8.0, gap: float = 0.04, press_start: float = 0.8,
+                  press_duration: float = 0.6, thickness: float = 0.005, friction: float = 0.3,
+                  frame_time: float = 0.04, steps_per_frame: int = 8, jitter: float = 1e-3, seed: int = 0,
+                  effects=("membrane", "bending", "gravity", "damping", "obstacles", "self_collision")) -> Scene:
+    """Dense self-contact: a strip released standing on its short edge collapses onto the
+    ground in folds that pile on each other; then a plate comes down and presses the pile to
+    `gap` above the ground (the stability suite's crushed sheet)."""
+    name = "crushed_sheet"
+    _check_resolution(name, resolution)
+    _check_size(name, length=length, width=width, gap=gap, press_duration=press_duration)
+    if gap <= 2 * thickness:
+        raise SceneError(f"scene {name!r}: gap ({gap} m) must exceed twice the thickness ({thickness} m)")
+    n = int(resolution)
+    ny = max(1, int(round(n * width / length)))
+    tilt = np.radians(tilt_deg)
+    up = (0.0, np.sin(tilt), np.cos(tilt))  # the strip's long side, tilted so that it folds one way
+    mesh = grid_mesh(width, length, ny, n, origin=(-width / 2, 0.0, drop_height), axes=((1.0, 0.0, 0.0), up))
+    rng = np.random.default_rng(seed)
+    mesh.node_x[:, 1] += jitter * rng.standard_normal(mesh.n_nodes)
+    top = float(mesh.node_x[:, 2].max()) + 0.05
+    plate = Plane(point=(0.0, 0.0, top), normal=(0.0, 0.0, -1.0), display_size=1.0, name="plate",
+                  motion=Ramp((0.0, 0.0, gap - top), press_start, press_start + press_duration))
+    obstacles = [Plane(point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0)), plate]
+    return Scene(name=name, mesh=mesh, material=material, effects=frozenset(effects),
+                 frame_time=frame_time, steps_per_frame=steps_per_frame,
+                 obstacles=obstacles, thickness=thickness, friction=friction)
 
 
 CHARACTER_EFFECTS = ("membrane", "bending", "gravity", "damping", "obstacles")
@@ -199,7 +252,8 @@ def multiple_dancers(material: Material, *, character: int = 0, count: int = 10,
 CROWDS = {"multiple_dancers"}  # scenes whose builder makes one character of a crowd (parameter `character`)
 
 SCENES = {"hanging_sheet": hanging_sheet, "sheet_on_sphere": sheet_on_sphere, "flag": flag,
-          "solo_dancer": solo_dancer, "karate": karate, "multiple_dancers": multiple_dancers}
+          "solo_dancer": solo_dancer, "karate": karate, "multiple_dancers": multiple_dancers,
+          "layered_sheets": layered_sheets, "crushed_sheet": crushed_sheet}
 
 
 def build_scene(name: str, material: Material, **params) -> Scene:

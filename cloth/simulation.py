@@ -7,7 +7,11 @@ One frame, as in DESIGN.md section 1::
         handles -> prescribed positions at t + h
         implicit Euler step (force terms of the declared effects, linear solve)
         obstacle contact (only if the scene declares 'obstacles')
+        self-collision: proximity, CCD, impact zones (only if it declares 'self_collision')
     per-frame record
+
+After a remesh that changed the mesh, a scene with 'self_collision' is untangled (crossings
+removed by intersection contour minimisation, cloth.untangle) before the steps.
 
 The three modes share all of this; only the remesh stage (its sizing field) differs.
 """
@@ -30,6 +34,13 @@ PHASES = ("sizing", "remesh", "physics", "solve", "collisions", "io", "other")
 # A free node within (1 + CONTACT_BAND) x thickness of an obstacle at the start of a step is a
 # contact candidate for the solve (projection leaves resting nodes at exactly the thickness).
 CONTACT_BAND = 0.5
+# Columns of the self-collision record; zero in scenes without the effect.
+COLLISION_RECORD = {"self_proximity": 0, "self_ccd_hits": 0, "self_ccd_passes": 0, "impact_zones": 0,
+                    "impact_zone_rounds": 0, "self_collisions_left": 0, "intersections_found": 0,
+                    "untangle_iterations": 0, "intersections_left": 0, "intersection_depth_m": 0.0,
+                    "intersection_length_m": 0.0}
+# Bound of the contour-minimisation iterations after a remesh (the record says what is left).
+UNTANGLE_ITERATIONS = 30
 
 
 class SimulationDiverged(RuntimeError):
@@ -86,6 +97,10 @@ class Simulation:
             from .obstacles import ObstacleSet
             self.obstacle_set = ObstacleSet(scene.obstacles)
             self.contact = resolve_obstacle_contacts
+        self.self_collision = None
+        if "self_collision" in scene.effects:
+            from .selfcollision import SelfCollisionParams
+            self.self_collision = SelfCollisionParams(thickness=scene.thickness, friction=scene.friction)
         self.frame = 0
         self.time = 0.0
         self.steps_taken = 0
@@ -144,6 +159,7 @@ class Simulation:
         scene, mesh, h = self.scene, self.scene.mesh, self.scene.dt
         m = scene.material
         contacts = None
+        x_start = mesh.node_x.copy() if self.self_collision is not None else None
         if self.contact is not None:
             t0 = time.perf_counter()
             contacts = self._contact_constraints()
@@ -172,7 +188,30 @@ class Simulation:
                              scene.thickness, scene.friction, h)
             stats["contacts"] = max(stats["contacts"], int(c.get("contacts", 0)))
             timings["collisions"] += time.perf_counter() - t0
+        if self.self_collision is not None:
+            t0 = time.perf_counter()
+            self._resolve_self_collisions(x_start, h, stats)
+            timings["collisions"] += time.perf_counter() - t0
         self._check(stats)
+
+    def _resolve_self_collisions(self, x_start: np.ndarray, h: float, stats: dict) -> None:
+        from .selfcollision import resolve_self_collisions
+        mesh = self.scene.mesh
+        x_end = mesh.node_x.copy()
+        s = resolve_self_collisions(mesh.face_nodes, mesh.face_edges, mesh.edge_nodes, x_start,
+                                    mesh.node_x, mesh.node_m, mesh.node_pinned, self.self_collision)
+        mesh.node_v += (mesh.node_x - x_end) / h
+        for key in ("self_proximity", "self_ccd_hits", "self_ccd_passes", "impact_zones", "impact_zone_rounds"):
+            stats[key] = max(stats[key], s[key])
+        stats["self_collisions_left"] = s["self_collisions_left"]  # what the frame's last step left
+
+    def untangle(self, stats: dict) -> None:
+        """Remove crossings of the cloth with itself (after a remesh); counts into `stats`."""
+        from .untangle import untangle
+        mesh = self.scene.mesh
+        s = untangle(mesh.face_nodes, mesh.node_x, mesh.node_m, mesh.node_pinned, self.scene.thickness,
+                     UNTANGLE_ITERATIONS)
+        stats.update(s)
 
     def _check(self, stats: dict) -> None:
         mesh = self.scene.mesh
@@ -192,8 +231,13 @@ class Simulation:
         stats = {"solver_iterations": 0, "solver_iterations_max": 0, "solver_residual": 0.0, "contacts": 0}
         stats.update(REMESH_RECORD)
         stats.update(VIEW_RECORD)
+        stats.update(COLLISION_RECORD)
         if self.remesher is not None:
-            self.remesher.remesh(self, timings, stats)
+            changed = self.remesher.remesh(self, timings, stats)
+            if changed and self.self_collision is not None:
+                t0 = time.perf_counter()
+                self.untangle(stats)
+                timings["collisions"] += time.perf_counter() - t0
         if self.buckling is not None:
             t0 = time.perf_counter()
             self.update_buckling()

@@ -1,0 +1,405 @@
+"""Cloth self-collision over one step: proximity repulsion, continuous collision detection and
+rigid impact zones (Bridson, Fedkiw and Anderson 2002; Provot 1997), on node positions.
+
+Given the positions x0 at the start of a step (assumed free of intersections) and the
+positions x1 the integrator proposes at its end, `resolve_self_collisions` changes x1 so that
+
+1. **proximity**: vertex-face and edge-edge pairs closer than the thickness at x1 are pushed
+   apart to the thickness (mass-weighted, with the primitives' barycentric weights), with
+   Coulomb friction on their relative tangential motion over the step;
+2. **continuous collision detection**: every vertex-face and edge-edge pair that touches
+   during the linear motion x0 -> x1 (roots of the coplanarity cubic, `cloth.ccd`) is given a
+   correction that leaves it on its starting side by a small separation at the end of the
+   step; repeated in Gauss-Seidel passes until a pass finds nothing or the pass limit is hit;
+3. **rigid impact zones**: if collisions remain, the nodes of each colliding pair are merged
+   into zones (with the zones already found) and each zone moves rigidly with its own linear
+   and angular momentum over the step. A rigid motion of a collision-free configuration has no
+   internal collisions, and zones only grow, so this terminates: at worst with one zone that
+   holds every colliding node. A zone with pinned nodes (infinite mass) takes their mean
+   displacement. What is left after `max_zone_passes` is counted in the record (never aborts).
+
+The caller turns the change of x1 into a change of velocity (dv = dx1 / h). Pairs that share
+a node are never tested (adjacent elements touch by construction).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from .bvh import face_boxes, self_overlaps
+from .ccd import ee_ccd, point_triangle_closest, segment_segment_closest, vf_ccd
+
+# CCD counts a touch when two primitives come within this fraction of the thickness: the
+# coplanarity roots are exact only up to round-off, and a zero-distance test would miss grazes.
+CCD_ETA_FRACTION = 1e-3
+# After a CCD correction the pair ends this fraction of the thickness apart on its starting
+# side: enough that round-off does not put it back into contact, small enough that the
+# correction does not start new collisions (the proximity stage of the next step restores the
+# full thickness).
+CCD_SEPARATION_FRACTION = 0.1
+# A proximity pair closer than this fraction of the thickness has no reliable direction at x1:
+# it takes its direction from x0.
+DEGENERATE_FRACTION = 1e-6
+
+
+@dataclass(frozen=True)
+class SelfCollisionParams:
+    thickness: float  # m, distance kept between cloth surfaces
+    friction: float = 0.3  # Coulomb coefficient, cloth against cloth
+    proximity_passes: int = 2  # Gauss-Seidel passes of the repulsion
+    ccd_passes: int = 6  # Gauss-Seidel CCD passes before rigid impact zones
+    max_zone_passes: int = 40  # impact-zone rounds before giving up (the record says what is left)
+
+    def __post_init__(self):
+        if not self.thickness > 0:
+            raise ValueError(f"self-collision thickness must be > 0, got {self.thickness}")
+        if self.friction < 0:
+            raise ValueError(f"self-collision friction must be >= 0, got {self.friction}")
+        for name in ("proximity_passes", "ccd_passes", "max_zone_passes"):
+            if int(getattr(self, name)) < 0:
+                raise ValueError(f"self-collision {name} must be >= 0, got {getattr(self, name)}")
+
+
+# ------------------------------------------------------------------------------------------
+# candidate primitive pairs from candidate face pairs
+
+
+@njit(cache=True)
+def _candidates(face_pairs, face_nodes, face_edges, edge_nodes, n_faces, n_edges):
+    """Vertex-face keys (node * F + face) and edge-edge keys (e_lo * E + e_hi) of the face
+    pairs, skipping pairs that share a node. Duplicates are removed by the caller."""
+    P = face_pairs.shape[0]
+    vf = np.empty(6 * P, dtype=np.int64)
+    ee = np.empty(9 * P, dtype=np.int64)
+    nv = 0
+    ne = 0
+    for k in range(P):
+        for side in range(2):
+            f = face_pairs[k, side]
+            g = face_pairs[k, 1 - side]
+            for a in range(3):
+                i = face_nodes[f, a]
+                if i == face_nodes[g, 0] or i == face_nodes[g, 1] or i == face_nodes[g, 2]:
+                    continue
+                vf[nv] = i * n_faces + g
+                nv += 1
+        f, g = face_pairs[k, 0], face_pairs[k, 1]
+        for a in range(3):
+            e1 = face_edges[f, a]
+            p, q = edge_nodes[e1, 0], edge_nodes[e1, 1]
+            for b in range(3):
+                e2 = face_edges[g, b]
+                P2, Q2 = edge_nodes[e2, 0], edge_nodes[e2, 1]
+                if p == P2 or p == Q2 or q == P2 or q == Q2:
+                    continue
+                ee[ne] = min(e1, e2) * n_edges + max(e1, e2)
+                ne += 1
+    return vf[:nv], ee[:ne]
+
+
+def candidate_pairs(face_nodes, face_edges, edge_nodes, x0, x1, pad):
+    """Vertex-face (K, 2) [node, face] and edge-edge (L, 2) [edge, edge] pairs whose boxes
+    (covering x0 -> x1, or x0 alone if x1 is None, inflated by `pad`) overlap."""
+    lo, hi = face_boxes(face_nodes, x0, x1, pad)
+    fp = self_overlaps(lo, hi)
+    F, E = face_nodes.shape[0], edge_nodes.shape[0]
+    vf, ee = _candidates(fp, face_nodes, face_edges, edge_nodes, F, E)
+    vf, ee = np.unique(vf), np.unique(ee)
+    return (np.stack([vf // F, vf % F], axis=1), np.stack([ee // E, ee % E], axis=1))
+
+
+# ------------------------------------------------------------------------------------------
+# a constraint on four nodes: n . sum_k w_k x_k >= target
+
+
+@njit(cache=True)
+def _apply(x1, inv_m, idx, w, n, target):
+    """Move the four nodes idx (weights w) along n, mass-weighted, so that n . sum w x = target
+    if it is below. Returns the correction's size (0 if none or if every node is pinned)."""
+    c = 0.0
+    denom = 0.0
+    for k in range(4):
+        i = idx[k]
+        c += w[k] * (n[0] * x1[i, 0] + n[1] * x1[i, 1] + n[2] * x1[i, 2])
+        denom += w[k] * w[k] * inv_m[i]
+    if c >= target or denom == 0.0:
+        return 0.0
+    lam = (target - c) / denom
+    for k in range(4):
+        i = idx[k]
+        s = lam * w[k] * inv_m[i]
+        for d in range(3):
+            x1[i, d] += s * n[d]
+    return target - c
+
+
+@njit(cache=True)
+def _friction(x0, x1, inv_m, idx, w, n, dn, mu):
+    """Coulomb friction: reduce the relative tangential motion over the step of the pair by at
+    most mu * dn (the normal correction just applied), stopping at zero relative slip."""
+    if mu == 0.0 or dn <= 0.0:
+        return
+    rel = np.zeros(3)
+    denom = 0.0
+    for k in range(4):
+        i = idx[k]
+        for d in range(3):
+            rel[d] += w[k] * (x1[i, d] - x0[i, d])
+        denom += w[k] * w[k] * inv_m[i]
+    if denom == 0.0:
+        return
+    rn = rel[0] * n[0] + rel[1] * n[1] + rel[2] * n[2]
+    t = rel - rn * n
+    tn = np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
+    if tn == 0.0:
+        return
+    frac = min(1.0, mu * dn / tn)
+    lam = -frac / denom
+    for k in range(4):
+        i = idx[k]
+        s = lam * w[k] * inv_m[i]
+        for d in range(3):
+            x1[i, d] += s * t[d]
+
+
+@njit(cache=True)
+def _normalise(v):
+    L = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    if L > 0.0:
+        for d in range(3):
+            v[d] /= L
+    return L
+
+
+@njit(cache=True)
+def _vf_geometry(x, i, a, b, c):
+    """Distance, weights (1, -w0, -w1, -w2) and unit direction from the face to the node."""
+    dist, w0, w1, w2 = point_triangle_closest(x[i], x[a], x[b], x[c])
+    n = x[i] - (w0 * x[a] + w1 * x[b] + w2 * x[c])
+    _normalise(n)
+    w = np.array([1.0, -w0, -w1, -w2])
+    return dist, w, n
+
+
+@njit(cache=True)
+def _ee_geometry(x, p, q, P, Q):
+    dist, s, t = segment_segment_closest(x[p], x[q], x[P], x[Q])
+    n = (x[p] + s * (x[q] - x[p])) - (x[P] + t * (x[Q] - x[P]))
+    _normalise(n)
+    w = np.array([1.0 - s, s, -(1.0 - t), -t])
+    return dist, w, n
+
+
+@njit(cache=True)
+def _proximity(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, h, mu, passes):
+    """Repulsion passes; returns the number of pairs found closer than h in the first pass."""
+    idx = np.empty(4, dtype=np.int64)
+    first = 0
+    for it in range(passes):
+        count = 0
+        for k in range(vf.shape[0]):
+            i, f = vf[k, 0], vf[k, 1]
+            a, b, c = face_nodes[f, 0], face_nodes[f, 1], face_nodes[f, 2]
+            dist, w, n = _vf_geometry(x1, i, a, b, c)
+            if dist >= h:
+                continue
+            count += 1
+            if dist < DEGENERATE_FRACTION * h:
+                d0, w0_, n = _vf_geometry(x0, i, a, b, c)
+                if d0 == 0.0:
+                    continue
+            idx[0], idx[1], idx[2], idx[3] = i, a, b, c
+            dn = _apply(x1, inv_m, idx, w, n, _dot_w(x1, idx, w, n) + (h - dist))
+            _friction(x0, x1, inv_m, idx, w, n, dn, mu)
+        for k in range(ee.shape[0]):
+            e1, e2 = ee[k, 0], ee[k, 1]
+            p, q, P, Q = edge_nodes[e1, 0], edge_nodes[e1, 1], edge_nodes[e2, 0], edge_nodes[e2, 1]
+            dist, w, n = _ee_geometry(x1, p, q, P, Q)
+            if dist >= h:
+                continue
+            count += 1
+            if dist < DEGENERATE_FRACTION * h:
+                d0, w0_, n = _ee_geometry(x0, p, q, P, Q)
+                if d0 == 0.0:
+                    continue
+            idx[0], idx[1], idx[2], idx[3] = p, q, P, Q
+            dn = _apply(x1, inv_m, idx, w, n, _dot_w(x1, idx, w, n) + (h - dist))
+            _friction(x0, x1, inv_m, idx, w, n, dn, mu)
+        if it == 0:
+            first = count
+        if count == 0:
+            break
+    return first
+
+
+@njit(cache=True)
+def _dot_w(x, idx, w, n):
+    c = 0.0
+    for k in range(4):
+        i = idx[k]
+        c += w[k] * (n[0] * x[i, 0] + n[1] * x[i, 1] + n[2] * x[i, 2])
+    return c
+
+
+@njit(cache=True)
+def _lerp(x0, x1, i, t):
+    return x0[i] + t * (x1[i] - x0[i])
+
+
+@njit(cache=True)
+def _ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, respond, hits):
+    """One Gauss-Seidel pass of CCD over the candidate pairs. Each hit (re-tested against the
+    current x1, so pairs an earlier correction fixed are skipped) is written to `hits` as four
+    node indices; with `respond` it is also corrected. Returns the number of hits."""
+    idx = np.empty(4, dtype=np.int64)
+    nh = 0
+    for k in range(vf.shape[0]):
+        i, f = vf[k, 0], vf[k, 1]
+        a, b, c = face_nodes[f, 0], face_nodes[f, 1], face_nodes[f, 2]
+        t = vf_ccd(x0[i], x0[a], x0[b], x0[c], x1[i], x1[a], x1[b], x1[c], eta)
+        if t < 0.0:
+            continue
+        idx[0], idx[1], idx[2], idx[3] = i, a, b, c
+        hits[nh] = idx
+        nh += 1
+        if not respond:
+            continue
+        xi, xa, xb, xc = _lerp(x0, x1, i, t), _lerp(x0, x1, a, t), _lerp(x0, x1, b, t), _lerp(x0, x1, c, t)
+        dist, w0, w1, w2 = point_triangle_closest(xi, xa, xb, xc)
+        n = np.cross(xb - xa, xc - xa)
+        if _normalise(n) == 0.0:  # degenerate face at the touch: use the direction at x0
+            n = x0[i] - (w0 * x0[a] + w1 * x0[b] + w2 * x0[c])
+            if _normalise(n) == 0.0:
+                continue
+        w = np.array([1.0, -w0, -w1, -w2])
+        if _dot_w(x0, idx, w, n) < 0.0:  # keep the node on the side of the face it started on
+            n = -n
+        _apply(x1, inv_m, idx, w, n, sep)
+    for k in range(ee.shape[0]):
+        e1, e2 = ee[k, 0], ee[k, 1]
+        p, q, P, Q = edge_nodes[e1, 0], edge_nodes[e1, 1], edge_nodes[e2, 0], edge_nodes[e2, 1]
+        t = ee_ccd(x0[p], x1[p], x0[q], x1[q], x0[P], x1[P], x0[Q], x1[Q], eta)
+        if t < 0.0:
+            continue
+        idx[0], idx[1], idx[2], idx[3] = p, q, P, Q
+        hits[nh] = idx
+        nh += 1
+        if not respond:
+            continue
+        xp, xq, xP, xQ = _lerp(x0, x1, p, t), _lerp(x0, x1, q, t), _lerp(x0, x1, P, t), _lerp(x0, x1, Q, t)
+        dist, s, u = segment_segment_closest(xp, xq, xP, xQ)
+        n = np.cross(xq - xp, xQ - xP)
+        w = np.array([1.0 - s, s, -(1.0 - u), -u])
+        if _normalise(n) == 0.0:  # parallel edges: the direction between the closest points at x0
+            n = np.zeros(3)
+            for kk in range(4):
+                n += w[kk] * x0[idx[kk]]
+            if _normalise(n) == 0.0:
+                continue
+        if _dot_w(x0, idx, w, n) < 0.0:
+            n = -n
+        _apply(x1, inv_m, idx, w, n, sep)
+    return nh
+
+
+def _find(parent, i):
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+def _rigid_motion(x0, x1, m, pinned, nodes):
+    """Replace the end positions of `nodes` by the rigid motion with their linear and angular
+    momentum over the step (or, with pinned nodes, by the pinned nodes' mean displacement)."""
+    if pinned[nodes].any():
+        free = nodes[~pinned[nodes]]
+        x1[free] = x0[free] + (x1[nodes[pinned[nodes]]] - x0[nodes[pinned[nodes]]]).mean(axis=0)
+        return
+    mm = m[nodes]
+    d = x1[nodes] - x0[nodes]
+    M = mm.sum()
+    c0 = (mm @ x0[nodes]) / M
+    dc = (mm @ d) / M
+    r = x0[nodes] - c0
+    L = np.sum(mm[:, None] * np.cross(r, d - dc), axis=0)  # angular momentum x step length
+    inertia = (mm * np.einsum("ij,ij->i", r, r)).sum() * np.eye(3) - (mm[:, None] * r).T @ r
+    try:
+        theta = np.linalg.solve(inertia, L)  # rotation vector over the step
+    except np.linalg.LinAlgError:
+        theta = np.linalg.lstsq(inertia, L, rcond=None)[0]
+    angle = float(np.linalg.norm(theta))
+    if angle > 0:
+        k = theta / angle
+        K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+        R = np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+    else:
+        R = np.eye(3)
+    x1[nodes] = c0 + dc + r @ R.T
+
+
+def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, pinned,
+                            params: SelfCollisionParams) -> dict:
+    """Make the step x0 -> x1 free of cloth self-collisions (modifies x1 in place).
+
+    Returns the record: proximity pairs, CCD collisions found in the first pass, CCD passes,
+    impact zones and their rounds, and the collisions left when every bound was reached.
+    """
+    h = params.thickness
+    inv_m = np.where(pinned, 0.0, 1.0 / node_m)
+    stats = {"self_proximity": 0, "self_ccd_hits": 0, "self_ccd_passes": 0, "impact_zones": 0,
+             "impact_zone_rounds": 0, "self_collisions_left": 0}
+    if face_nodes.shape[0] < 2:
+        return stats
+    # 1. proximity at the proposed end positions
+    if params.proximity_passes > 0:
+        vf, ee = candidate_pairs(face_nodes, face_edges, edge_nodes, x1, None, h)
+        stats["self_proximity"] = int(_proximity(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, h,
+                                                 params.friction, int(params.proximity_passes)))
+    # 2. CCD passes with corrections
+    eta = CCD_ETA_FRACTION * h
+    sep = CCD_SEPARATION_FRACTION * h
+    vf, ee = candidate_pairs(face_nodes, face_edges, edge_nodes, x0, x1, eta)
+    hits = np.empty((vf.shape[0] + ee.shape[0], 4), dtype=np.int64)
+    for p in range(int(params.ccd_passes)):
+        n = _ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, True, hits)
+        if p == 0:
+            stats["self_ccd_hits"] = int(n)
+        if n == 0:
+            return stats
+        stats["self_ccd_passes"] = p + 1
+        vf, ee = candidate_pairs(face_nodes, face_edges, edge_nodes, x0, x1, eta)
+        hits = np.empty((vf.shape[0] + ee.shape[0], 4), dtype=np.int64)
+    # 3. rigid impact zones
+    parent = np.arange(x0.shape[0])
+    in_zone = np.zeros(x0.shape[0], dtype=bool)
+    for r in range(int(params.max_zone_passes) + 1):
+        n = _ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, False, hits)
+        if n == 0:
+            break
+        if r == int(params.max_zone_passes):
+            stats["self_collisions_left"] = int(n)
+            break
+        stats["impact_zone_rounds"] = r + 1
+        for a, b, c, d in hits[:n]:
+            ra = _find(parent, a)
+            for j in (b, c, d):
+                rj = _find(parent, j)
+                if rj != ra:
+                    parent[rj] = ra
+            in_zone[[a, b, c, d]] = True
+        members = np.flatnonzero(in_zone)
+        roots = np.array([_find(parent, i) for i in members])
+        order = np.argsort(roots, kind="stable")
+        members, roots = members[order], roots[order]
+        splits = np.flatnonzero(np.diff(roots)) + 1
+        zones = np.split(members, splits)
+        stats["impact_zones"] = len(zones)
+        for zone in zones:
+            _rigid_motion(x0, x1, node_m, pinned, zone)
+        vf, ee = candidate_pairs(face_nodes, face_edges, edge_nodes, x0, x1, eta)
+        hits = np.empty((vf.shape[0] + ee.shape[0], 4), dtype=np.int64)
+    return stats

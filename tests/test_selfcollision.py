@@ -1,0 +1,270 @@
+"""Self-collision: broad phase against brute force, the step response (proximity, CCD, impact
+zones) leaves no collision and no crossing, conserves momentum; untangling removes crossings,
+its contour-length gradient matches finite differences; the effect costs nothing when a scene
+does not declare it; layered sheets stay apart in the frame loop in all modes."""
+
+import numpy as np
+import pytest
+
+from cloth.bvh import cross_overlaps, face_boxes, self_overlaps
+from cloth.ccd import point_triangle_closest
+from cloth.material import Material
+from cloth.mesh import grid_mesh, merge_meshes
+from cloth.scenes import layered_sheets
+from cloth.selfcollision import (CCD_ETA_FRACTION, SelfCollisionParams, _ccd_pass, candidate_pairs,
+                                 resolve_self_collisions)
+from cloth.simulation import Simulation
+from cloth.untangle import find_intersections, untangle
+
+COTTON = Material("cotton", density=0.12, youngs_modulus=2.0e3, poisson_ratio=0.3, bending_stiffness=2e-6,
+                  damping_mass=0.1, damping_stiffness=0.0)
+THICKNESS = 0.005
+# momentum is conserved up to round-off of sums over a few hundred nodes of O(1) m
+MOMENTUM_TOL = 1e-12
+# finite-difference step (m) and relative tolerance of the contour-length gradient: l is
+# piecewise linear in a translation, so central differences are exact away from kinks
+FD_STEP = 1e-7
+FD_REL_TOL = 1e-5
+
+
+def ccd_hits(mesh, x0, x1, thickness=THICKNESS):
+    """CCD collisions left over the step x0 -> x1 (no response)."""
+    eta = CCD_ETA_FRACTION * thickness
+    vf, ee = candidate_pairs(mesh.face_nodes, mesh.face_edges, mesh.edge_nodes, x0, x1, eta)
+    hits = np.empty((len(vf) + len(ee), 4), dtype=np.int64)
+    inv_m = np.ones(mesh.n_nodes)
+    return _ccd_pass(vf, ee, mesh.face_nodes, mesh.edge_nodes, x0, x1.copy(), inv_m, eta, 0.0, False, hits)
+
+
+def two_sheets(n=6, gap=0.02, size=0.3, shift=(0.013, 0.007)):
+    lower = grid_mesh(size, size, n, n, origin=(0.0, 0.0, 0.0))
+    upper = grid_mesh(size * 0.8, size * 0.8, n, n, origin=(0.03 + shift[0], 0.03 + shift[1], gap))
+    mesh = merge_meshes([lower, upper])
+    mesh.update_rest_data(COTTON.density)
+    return mesh, lower.n_nodes
+
+
+# ------------------------------------------------------------------------------------------
+def test_bvh_pairs_equal_brute_force():
+    rng = np.random.default_rng(1)
+    for n in (0, 1, 2, 7, 60, 400):
+        c = rng.random((n, 3))
+        s = 0.15 * rng.random((n, 3))
+        lo, hi = c - s, c + s
+        ov = np.all((lo[:, None] <= hi[None]) & (lo[None] <= hi[:, None]), axis=2)
+        i, j = np.nonzero(np.triu(ov, 1))
+        assert sorted(map(tuple, self_overlaps(lo, hi))) == sorted(zip(i, j))
+        c2 = rng.random((35, 3))
+        lo2, hi2 = c2 - 0.05, c2 + 0.05
+        ov2 = np.all((lo[:, None] <= hi2[None]) & (lo2[None] <= hi[:, None]), axis=2)
+        i, j = np.nonzero(ov2)
+        assert sorted(map(tuple, cross_overlaps(lo, hi, lo2, hi2))) == sorted(zip(i, j))
+
+
+def test_bvh_rejects_bad_boxes():
+    with pytest.raises(ValueError, match="finite"):
+        self_overlaps(np.array([[0.0, 0, np.nan]]), np.ones((1, 3)))
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        self_overlaps(np.zeros((2, 2)), np.ones((2, 2)))
+
+
+def test_face_boxes_cover_the_motion():
+    mesh, _ = two_sheets()
+    x1 = mesh.node_x + np.array([0.0, 0.0, -0.05])
+    lo, hi = face_boxes(mesh.face_nodes, mesh.node_x, x1, pad=0.001)
+    for x in (mesh.node_x, x1):
+        corners = x[mesh.face_nodes]
+        assert np.all(corners >= lo[:, None] + 0.001 - 1e-15) and np.all(corners <= hi[:, None] - 0.001 + 1e-15)
+
+
+# ------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("drop", [0.03, 0.2])
+def test_sheet_driven_through_another_is_stopped(drop):
+    """The upper sheet moves down through the lower one within one step (by 1.5x and 10x
+    its distance): afterwards no CCD collision is left and the sheets do not cross."""
+    mesh, n_lower = two_sheets()
+    x0 = mesh.node_x.copy()
+    x1 = x0.copy()
+    x1[n_lower:, 2] -= drop
+    before = ccd_hits(mesh, x0, x1)
+    assert before > 0
+    stats = resolve_self_collisions(mesh.face_nodes, mesh.face_edges, mesh.edge_nodes, x0, x1, mesh.node_m,
+                                    mesh.node_pinned, SelfCollisionParams(THICKNESS))
+    assert stats["self_ccd_hits"] > 0 and stats["self_collisions_left"] == 0
+    assert ccd_hits(mesh, x0, x1) == 0
+    assert len(find_intersections(mesh.face_nodes, x1)[0]) == 0
+    assert np.all(x1[n_lower:, 2] > x1[:n_lower, 2].min())  # the upper sheet stayed above
+
+
+def test_random_crossings_resolved_and_momentum_kept():
+    rng = np.random.default_rng(7)
+    mesh, n_lower = two_sheets(n=5)
+    m = mesh.node_m
+    for trial in range(5):
+        x0 = mesh.node_x.copy()
+        x1 = x0 + 0.01 * rng.standard_normal(x0.shape)
+        x1[n_lower:, 2] -= rng.uniform(0.02, 0.08)
+        before = x1.copy()
+        stats = resolve_self_collisions(mesh.face_nodes, mesh.face_edges, mesh.edge_nodes, x0, x1, m,
+                                        mesh.node_pinned, SelfCollisionParams(THICKNESS, friction=0.5))
+        assert stats["self_collisions_left"] == 0, trial
+        assert ccd_hits(mesh, x0, x1) == 0, trial
+        assert len(find_intersections(mesh.face_nodes, x1)[0]) == 0, trial
+        assert np.allclose(m @ x1, m @ before, rtol=0, atol=MOMENTUM_TOL), trial
+
+
+def test_proximity_restores_the_thickness():
+    """Sheets ending 1 mm apart are pushed to the thickness (vertex-face distances)."""
+    mesh, n_lower = two_sheets(gap=0.01)
+    x0 = mesh.node_x.copy()
+    x1 = x0.copy()
+    x1[n_lower:, 2] -= 0.009
+    resolve_self_collisions(mesh.face_nodes, mesh.face_edges, mesh.edge_nodes, x0, x1, mesh.node_m,
+                            mesh.node_pinned, SelfCollisionParams(THICKNESS, proximity_passes=6))
+    lower_faces = mesh.face_nodes[: len(mesh.face_nodes) // 2]
+    d = [min(point_triangle_closest(x1[i], *x1[f])[0] for f in lower_faces) for i in range(n_lower, mesh.n_nodes)]
+    assert min(d) > 0.9 * THICKNESS  # Gauss-Seidel passes leave a little of the overlap
+
+
+def test_pinned_sheet_does_not_move():
+    mesh, n_lower = two_sheets()
+    mesh.node_pinned[:n_lower] = True
+    x0 = mesh.node_x.copy()
+    x1 = x0.copy()
+    x1[n_lower:, 2] -= 0.05
+    resolve_self_collisions(mesh.face_nodes, mesh.face_edges, mesh.edge_nodes, x0, x1, mesh.node_m,
+                            mesh.node_pinned, SelfCollisionParams(THICKNESS))
+    assert np.array_equal(x1[:n_lower], x0[:n_lower])
+    assert ccd_hits(mesh, x0, x1) == 0
+
+
+def test_params_validated():
+    with pytest.raises(ValueError, match="thickness"):
+        SelfCollisionParams(0.0)
+    with pytest.raises(ValueError, match="friction"):
+        SelfCollisionParams(0.01, friction=-1)
+
+
+# ------------------------------------------------------------------------------------------
+def crossed_sheets(n=6, depth=0.04):
+    """A horizontal sheet and a tilted one poking through it (a crossing of two pieces)."""
+    flat = grid_mesh(0.4, 0.4, n, n, origin=(-0.2, -0.2, 0.0))
+    # generic placement (no edge of one sheet through a node or edge of the other)
+    tilted = grid_mesh(0.2, 0.2, n + 1, n + 1, origin=(-0.1037, -0.0913, -depth),
+                       axes=((0.9950, 0.0998, 0.0), (-0.0599, 0.5970, 0.8)))
+    mesh = merge_meshes([flat, tilted])
+    mesh.update_rest_data(COTTON.density)
+    return mesh, flat.n_nodes
+
+
+def test_contour_length_gradient_matches_finite_differences():
+    mesh, n_flat = crossed_sheets()
+    x = mesh.node_x
+    g = np.zeros_like(x)
+    pairs, length, _ = find_intersections(mesh.face_nodes, x, g)
+    assert len(pairs) > 0
+    for d in range(3):
+        e = np.zeros(3)
+        e[d] = FD_STEP
+        xp, xm = x.copy(), x.copy()
+        xp[n_flat:] += e
+        xm[n_flat:] -= e
+        fd = (find_intersections(mesh.face_nodes, xp)[1].sum() - find_intersections(mesh.face_nodes, xm)[1].sum()) / (2 * FD_STEP)
+        analytic = g[n_flat:, d].sum()
+        assert abs(fd - analytic) <= FD_REL_TOL * max(1.0, abs(fd)), (d, fd, analytic)
+
+
+def bump_through_sheet(n=8, depth=0.03):
+    """A small sheet above a larger one with a bump pushed down through it (closed contours)."""
+    flat = grid_mesh(0.4, 0.4, n, n, origin=(-0.2, -0.2, 0.0))
+    b = grid_mesh(0.2, 0.2, n + 1, n + 1, origin=(-0.1037, -0.0913, 0.01))
+    c = b.node_x[:, :2] - b.node_x[:, :2].mean(axis=0)
+    b.node_x[:, 2] -= (0.01 + depth) * np.exp(-np.sum(c ** 2, axis=1) / (2 * 0.04 ** 2))
+    mesh = merge_meshes([flat, b])
+    mesh.update_rest_data(COTTON.density)
+    return mesh, flat.n_nodes
+
+
+def test_untangle_removes_closed_crossings():
+    mesh, n_flat = bump_through_sheet()
+    x = mesh.node_x
+    stats = untangle(mesh.face_nodes, x, mesh.node_m, mesh.node_pinned, THICKNESS, max_iterations=30)
+    assert stats["intersections_found"] > 0 and stats["untangle_iterations"] >= 1
+    assert stats["intersections_left"] == 0 and len(find_intersections(mesh.face_nodes, x)[0]) == 0
+    assert np.all(np.isfinite(x))
+    assert np.all(np.abs(x[:, 2]) < 0.1)  # moves bounded by the crossing depth, no blow-up
+
+
+def test_open_contour_is_reported_not_hidden():
+    """A hem through a sheet along its whole width: the known limit of contour minimisation."""
+    mesh, _ = crossed_sheets()
+    x = mesh.node_x
+    stats = untangle(mesh.face_nodes, x, mesh.node_m, mesh.node_pinned, THICKNESS, max_iterations=10)
+    assert stats["intersections_left"] == len(find_intersections(mesh.face_nodes, x)[0]) > 0
+    assert np.all(np.isfinite(x)) and np.all(np.abs(x[:, 2]) < 0.2)
+
+
+def test_untangle_reports_what_it_cannot_fix():
+    mesh, _ = crossed_sheets()
+    mesh.node_pinned[:] = True
+    x = mesh.node_x
+    stats = untangle(mesh.face_nodes, x, mesh.node_m, mesh.node_pinned, THICKNESS, max_iterations=5)
+    assert stats["intersections_left"] > 0
+    assert stats["intersection_depth_m"] > 0 and stats["intersection_length_m"] > 0
+
+
+# ------------------------------------------------------------------------------------------
+FRAMES = 25  # the upper sheet lands on the lower one on the sphere within ~15 frames
+
+
+def crossings(sim):
+    return len(find_intersections(sim.mesh.face_nodes, sim.mesh.node_x)[0])
+
+
+def test_layered_sheets_stay_apart_and_without_the_effect_they_cross():
+    sim = Simulation(layered_sheets(COTTON, resolution=8))
+    for _ in range(FRAMES):
+        rec = sim.advance_frame()
+        assert crossings(sim) == 0, rec["frame"]
+        assert rec["self_collisions_left"] == 0
+    assert rec["self_proximity"] > 0  # the layers are in contact at the end
+    effects = set(sim.scene.effects) - {"self_collision"}
+    bare = Simulation(layered_sheets(COTTON, resolution=8, effects=tuple(effects)))
+    assert bare.self_collision is None
+    for _ in range(FRAMES):
+        bare.advance_frame()
+    assert crossings(bare) > 0
+
+
+def test_scene_without_the_effect_never_calls_it(monkeypatch):
+    import cloth.selfcollision as sc
+    import cloth.untangle as ut
+
+    def boom(*a, **k):
+        raise AssertionError("self-collision ran in a scene that does not declare it")
+
+    monkeypatch.setattr(sc, "resolve_self_collisions", boom)
+    monkeypatch.setattr(ut, "untangle", boom)
+    effects = ("membrane", "bending", "gravity", "damping", "obstacles")
+    sim = Simulation(layered_sheets(COTTON, resolution=4, effects=effects))
+    rec = sim.advance_frame()
+    assert rec["self_ccd_hits"] == 0 and rec["time_collisions_s"] >= 0
+
+
+@pytest.mark.parametrize("mode,camera", [("adaptive", "none"), ("viewdep", "sheet_half")])
+def test_layered_sheets_adaptive_modes_untangle_after_remesh(mode, camera):
+    """In the adaptive modes the remesh moves the layers; untangling and CCD keep them apart."""
+    from pathlib import Path
+
+    from hydra import compose, initialize_config_dir
+
+    from experiments.build import build_simulation
+    conf = str(Path(__file__).resolve().parents[1] / "conf")
+    with initialize_config_dir(config_dir=conf, version_base="1.3"):
+        cfg = compose(config_name="config", overrides=["scene=layered_sheets", f"mode={mode}", f"camera={camera}"])
+    sim = build_simulation(cfg)[0]
+    for _ in range(FRAMES):
+        rec = sim.advance_frame()
+        assert rec["intersections_left"] == 0 and rec["self_collisions_left"] == 0, rec["frame"]
+        assert crossings(sim) == 0, rec["frame"]
+    assert rec["remeshed"] == 1
