@@ -95,17 +95,22 @@ def flag(material: Material, *, resolution: int = 30, width: float = 1.5, height
 def layered_sheets(material: Material, *, resolution: int = 12, size: float = 0.5, layers: int = 2,
                    spacing: float = 0.02, drop_height: float = 0.3, sphere_radius: float = 0.12,
                    thickness: float = 0.005, friction: float = 0.3, frame_time: float = 0.04,
-                   steps_per_frame: int = 8, jitter: float = 1e-4, seed: int = 0,
+                   steps_per_frame: int = 8, jitter: float = 1e-4, seed: int = 0, cell_aspect: float = 1.0,
                    effects=("membrane", "bending", "gravity", "damping", "obstacles", "self_collision")) -> Scene:
     """`layers` square sheets stacked `spacing` apart fall onto a sphere on the ground: the
-    upper sheets land on the lower ones (cloth-cloth contact between separate pieces)."""
+    upper sheets land on the lower ones (cloth-cloth contact between separate pieces).
+    `cell_aspect` > 1 makes the input grid's cells that many times longer (in y) than wide, so
+    the input triangles are thin (the stability suite's thin-triangle case)."""
     name = "layered_sheets"
     _check_resolution(name, resolution)
     _check_size(name, size=size, spacing=spacing, drop_height=drop_height, sphere_radius=sphere_radius)
     if int(layers) < 1:
         raise SceneError(f"scene {name!r}: layers must be >= 1, got {layers}")
+    if not cell_aspect >= 1:
+        raise SceneError(f"scene {name!r}: cell_aspect must be >= 1, got {cell_aspect}")
     n = int(resolution)
-    sheets = [grid_mesh(size, size, n, n, origin=(-size / 2 + 0.01 * k, -size / 2, drop_height + k * spacing))
+    ny = max(1, int(round(n / cell_aspect)))
+    sheets = [grid_mesh(size, size, n, ny, origin=(-size / 2 + 0.01 * k, -size / 2, drop_height + k * spacing))
               for k in range(int(layers))]
     mesh = merge_meshes(sheets)
     _jitter(mesh, jitter, seed)
@@ -181,20 +186,22 @@ def solo_dancer(material: Material, *, resolution: int = 48, waist_radius: float
                             frame_time=frame_time, steps_per_frame=steps_per_frame, effects=effects)
 
 
-LAYERS_APART_NOTE = ("karate: the two skirts are kept apart (6 cm) and do not collide with each other: "
-                     "cloth-cloth contact needs self-collision (issue 6), not implemented yet")
+NO_SELF_COLLISION_NOTE = ("karate: the scene does not declare self_collision, so the two skirts pass through "
+                          "each other where they touch")
 
 
 def karate(material: Material, *, resolution: int = 48, inner_radius: float = 0.26, inner_length: float = 0.55,
-           outer_radius: float = 0.32, outer_length: float = 0.35, speed: float = 1.0, settle: float = 0.5,
+           outer_radius: float = 0.29, outer_length: float = 0.35, outer_waist_height: float = 0.09,
+           speed: float = 1.0, settle: float = 0.5,
            blend_in: float = 1.0, position=(0.0, 0.0, 0.0), heading: float = 0.0, phase: float = 0.0,
            thickness: float = 0.005, friction: float = 0.3, frame_time: float = 0.04, steps_per_frame: int = 8,
-           seed: int = 0, effects=CHARACTER_EFFECTS) -> Scene:
+           seed: int = 0, effects=CHARACTER_EFFECTS + ("self_collision",)) -> Scene:
     """A karateka (opening pose with the fists forward, stance, punches, a front kick, a half
     turn) in a layered outfit: a long wide skirt (hakama, a tube with a seam at the back) pinned at
-    the hips under a shorter, wider overskirt (also a tube with a seam) pinned 6 cm higher. The
-    layers overlap in height but are kept apart (see LAYERS_APART_NOTE). `resolution`: segments
-    around each garment."""
+    the hips under a shorter, wider overskirt (also a tube with a seam) pinned `outer_waist_height`
+    higher: the layers overlap in height and touch when they swing (cloth-cloth contact through
+    the self_collision effect; without it the run notes that they pass through each other).
+    `resolution`: segments around each garment."""
     from .character import Karate, Mannequin
     from .garments import tube_skirt
 
@@ -209,10 +216,12 @@ def karate(material: Material, *, resolution: int = 48, inner_radius: float = 0.
                      phase=phase)
     n = max(int(resolution), 3)
     garments = [tube_skirt(body, waist_radius=inner_radius, length=inner_length, resolution=n, waist_height=0.06),
-                tube_skirt(body, waist_radius=outer_radius, length=outer_length, resolution=n, waist_height=0.12)]
+                tube_skirt(body, waist_radius=outer_radius, length=outer_length, resolution=n,
+                           waist_height=outer_waist_height)]
+    notes = [] if "self_collision" in effects else [NO_SELF_COLLISION_NOTE]
     return _character_scene(name, material, body, garments, thickness=thickness, friction=friction,
                             frame_time=frame_time, steps_per_frame=steps_per_frame, effects=effects,
-                            notes=[LAYERS_APART_NOTE])
+                            notes=notes)
 
 
 def crowd_placement(count: int, spacing: float, columns: int, phase_step: float, heading_step: float):

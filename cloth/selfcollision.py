@@ -51,7 +51,7 @@ class SelfCollisionParams:
     friction: float = 0.3  # Coulomb coefficient, cloth against cloth
     proximity_passes: int = 2  # Gauss-Seidel passes of the repulsion
     ccd_passes: int = 6  # Gauss-Seidel CCD passes before rigid impact zones
-    max_zone_passes: int = 40  # impact-zone rounds before giving up (the record says what is left)
+    max_zone_passes: int = 12  # impact-zone rounds before giving up (the record says what is left)
 
     def __post_init__(self):
         if not self.thickness > 0:

@@ -1,0 +1,43 @@
+"""Stability suite, small sizes (the larger versions: python -m experiments.stability).
+
+Every case (experiments/stability.py, CASES) runs at scale=small for its `frames_small` frames
+and must: run to the end (no exception), keep every value finite, keep the kinetic energy
+below 1/2 M v^2 for the case's speed bound (a 1 m free fall, or the body's fastest parts),
+leave no intersection (untangling after remeshes and CCD within steps both report zero left,
+and no crossing face pair at the end), and keep every face above the quality bound
+QUALITY_MIN. The cases:
+
+- one_frame_step: layered sheets, adaptive, one step per frame (dt = 0.04 s);
+- stiff_material: layered sheets, adaptive, stretch and bending 100x stiffer than cotton;
+- nu_out_0.001: layered sheets, viewdep, half the sheets in view, nu_out = 0.001;
+- buckling_k1 / buckling_k50: the same with buckling compensation k = 1 and k = 50;
+- cut_every_3_frames: viewdep, the camera jumps between two halves every 3 frames;
+- orbit_1s: viewdep, the camera circles the sheets once per second;
+- karate_2x: karate in layered skirts at twice its speed, adaptive;
+- crushed_sheet: a strip folds onto itself and a plate presses the pile to 4 cm, adaptive;
+- thin_triangles: layered sheets from an input grid of cells 12x longer than wide, adaptive.
+
+Not all cases hold yet: STABLE lists those verified to pass. The others are run and reported
+by `python -m experiments.stability` (ok = False with the failing check) and are open work of
+the collisions issue: with one step per frame or a 100x stiffer material the untangling after
+remeshes leaves crossings (hems through the other layer: open contours).
+"""
+
+import pytest
+
+from experiments.stability import QUALITY_MIN, case, run_case
+
+STABLE = ["nu_out_0.001", "buckling_k1", "cut_every_3_frames", "orbit_1s", "thin_triangles"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", [case(n) for n in STABLE], ids=STABLE)
+def test_case_stays_stable(case):
+    row = run_case(case, case.frames_small, "small")
+    assert row["error"] == "" and row["frames_run"] == case.frames_small, row
+    assert row["finite"], row
+    assert row["max_kinetic_energy_j"] <= row["kinetic_energy_bound_j"], row
+    assert row["intersections_left_max"] == 0 and row["self_collisions_left_max"] == 0, row
+    assert row["crossings_at_end"] == 0, row
+    assert row["min_face_quality"] >= QUALITY_MIN, row
+    assert row["ok"]
