@@ -3,9 +3,9 @@
 Every obstacle answers one query, used by contact (and later by the proximity sizing):
 ``query(points) -> (phi, normal, velocity)``: the signed distance from each point to the
 surface (negative inside), the outward unit normal at the closest surface point, and the
-velocity of the obstacle's surface there. A later issue adds animated characters (capsule
-unions driven capsule by capsule through :meth:`CapsuleUnion.set_capsules`) and triangle-mesh
-obstacles behind the same interface.
+velocity of the obstacle's surface there. Animated characters are capsule unions driven
+capsule by capsule through :meth:`CapsuleUnion.set_capsules` (cloth.character); triangle-mesh
+obstacles with per-frame vertex positions answer the same interface (cloth.meshobstacle).
 """
 
 from __future__ import annotations

@@ -3,7 +3,10 @@
 A run folder holds ``frames.parquet`` (one row per frame, rewritten atomically after every
 frame so that a run that fails keeps the frames it finished), ``summary.json`` (written at the
 end, also when the run fails, with the failure message), the Rerun recording and optional OBJ
-frames. The caller writes the resolved config and the environment manifest.
+frames. The caller writes the resolved config and the environment manifest. With
+`checkpoint_every` the run keeps its latest complete state in ``checkpoint/state.pkl`` (removed
+when it completes), from which experiments.resume continues a killed run; a completed run
+leaves ``final_state.npz`` (float64 positions) for experiments.replay (cloth.io.checkpoint).
 """
 
 from __future__ import annotations
@@ -14,9 +17,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .io.checkpoint import FINAL_STATE_FILE, remove_checkpoint, save_checkpoint, save_final_state
 from .io.manifest import write_json_atomic, write_parquet_atomic
 from .io.obj import save_obj
 from .io.recorder import Recorder
+from .screenspace import save_state
 from .simulation import PHASES, Simulation, SimulationDiverged
 
 
@@ -114,9 +119,17 @@ def write_still(sim, path: Path) -> Path:
 
 
 def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None = None,
-        obj_every: int = 0, progress: bool = False, stills_every: int = 0) -> dict:
+        obj_every: int = 0, progress: bool = False, stills_every: int = 0, states_every: int = 1,
+        checkpoint_every: int = 0, rows: list | None = None) -> dict:
     """Simulate `n_frames` frames, writing records into `out_dir`; returns the summary.
 
+    `states_every` N > 0 writes states/frame_NNNNN.npz (cloth.screenspace.save_state: node
+    positions, triangles, obstacles; for the accuracy measures) at frame 0 and every N-th frame.
+    `checkpoint_every` N > 0 saves the whole state and the records so far to checkpoint/state.pkl
+    every N-th frame (only the latest is kept; its time counts in time_io_s, except in the
+    checkpoint's own copy of that frame's record). To continue from a checkpoint pass its
+    simulation and its `rows` (records of the frames already done): the run goes on to frame
+    `n_frames` and its records are those of an uninterrupted run.
     A diverged run (non-finite state or a node above the speed limit) stops at the frame where
     it happened; its summary has status 'diverged' and the message, and the exception is
     re-raised after everything is written.
@@ -124,24 +137,28 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     recorder = recorder or Recorder()
-    rows: list[dict] = []
+    rows: list[dict] = list(rows or [])  # continuing from a checkpoint: its records
     status, message, error = "interrupted", "", None
     scene = sim.scene
     obstacles = sim.obstacle_set.obstacles if sim.contact is not None else ()
     camera, colors = _view(sim)
-    recorder.log_frame(0, sim.time, sim.mesh, face_colors=colors, obstacles=obstacles, camera=camera)
+    recorder.log_frame(sim.frame, sim.time, sim.mesh, face_colors=colors, obstacles=obstacles, camera=camera)
+    if states_every > 0 and sim.frame % states_every == 0:
+        save_state(out_dir / "states" / f"frame_{sim.frame:05d}.npz", sim.mesh, sim.frame, sim.time, obstacles)
     bar = None
     if progress:
         from tqdm import tqdm
-        bar = tqdm(total=n_frames, desc=f"{scene.name}", unit="frame")
+        bar = tqdm(total=n_frames, initial=len(rows), desc=f"{scene.name}", unit="frame")
     try:
-        for _ in range(n_frames):
+        for _ in range(n_frames - len(rows)):
             row = sim.advance_frame()
             t0 = time.perf_counter()
             camera, colors = _view(sim)
             recorder.log_frame(sim.frame, sim.time, sim.mesh, face_colors=colors, obstacles=obstacles, camera=camera)
             if obj_every > 0 and sim.frame % obj_every == 0:
                 save_obj(out_dir / "obj" / f"frame_{sim.frame:05d}.obj", sim.mesh)
+            if states_every > 0 and sim.frame % states_every == 0:
+                save_state(out_dir / "states" / f"frame_{sim.frame:05d}.npz", sim.mesh, sim.frame, sim.time, obstacles)
             if stills_every > 0 and sim.frame % stills_every == 0:
                 write_still(sim, out_dir / "stills" / f"frame_{sim.frame:05d}.png")
             rows.append(row)
@@ -149,9 +166,21 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
             io = time.perf_counter() - t0
             row["time_io_s"] = io
             row["wall_s"] += io
+            if checkpoint_every > 0 and sim.frame % checkpoint_every == 0:
+                t0 = time.perf_counter()
+                save_checkpoint(out_dir, sim, rows)
+                io = time.perf_counter() - t0
+                row["time_io_s"] += io
+                row["wall_s"] += io
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(faces=row["faces"], s_per_frame=f"{row['wall_s']:.3f}")
+        if rows:  # the state a replay compares positions with (float64)
+            t0 = time.perf_counter()
+            save_final_state(out_dir / FINAL_STATE_FILE, sim)
+            io = time.perf_counter() - t0
+            rows[-1]["time_io_s"] += io
+            rows[-1]["wall_s"] += io
         status = "completed"
     except SimulationDiverged as exc:
         status, message, error = "diverged", str(exc), exc
@@ -171,6 +200,8 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
             summary["final_kinetic_energy_j"] = float(rows[-1]["kinetic_energy_j"])
         summary["finite"] = bool(np.all(np.isfinite(sim.mesh.node_x)))
         write_json_atomic(out_dir / "summary.json", summary)
+        if status == "completed":  # after the summary: a kill in between still leaves a resumable run
+            remove_checkpoint(out_dir)
         recorder.close()
     if error is not None:
         raise error

@@ -150,40 +150,116 @@ def crushed_sheet(material: Material, *, resolution: int = 24, length: float = 0
                  obstacles=obstacles, thickness=thickness, friction=friction)
 
 
+def mesh_obstacle(material: Material, *, resolution: int = 24, size: float = 1.0, drop_height: float = 0.75,
+                  obstacle_obj=None, obstacle_scale: float = 1.0, obstacle_offset=(0.0, 0.0, 0.0),
+                  obstacle_frame_time: float = 0.04, obstacle_query_radius=None, sphere_radius: float = 0.25,
+                  sphere_subdivisions: int = 2, sphere_travel=(0.15, 0.0, 0.0), sphere_period: float = 2.0,
+                  sphere_keyframes: int = 50, ground: bool = True, thickness: float = 0.005,
+                  friction: float = 0.3, frame_time: float = 0.04, steps_per_frame: int = 8,
+                  jitter: float = 1e-4, seed: int = 0,
+                  effects=("membrane", "bending", "gravity", "damping", "obstacles")) -> Scene:
+    """A square sheet falls onto an animated triangle-mesh obstacle (cloth.meshobstacle) on the ground.
+
+    The obstacle is the OBJ sequence `obstacle_obj` (a glob pattern such as 'walk/frame_*.obj', a
+    directory of .obj files, or a list of files; one topology; positions x `obstacle_scale` +
+    `obstacle_offset`, m; one file every `obstacle_frame_time` s, linear in between, held after
+    the last), or by default an icosphere (`sphere_radius`, `sphere_subdivisions`) resting on the
+    ground whose centre swings by `sphere_travel` sin(2 pi t / `sphere_period`), given as
+    `sphere_keyframes` keyframes `obstacle_frame_time` apart (the same path as an OBJ sequence
+    written by `python -m cloth.meshobstacle DIR`)."""
+    from .meshobstacle import MeshObstacleError, TriangleMeshObstacle, load_obj_sequence, moving_sphere_keyframes
+
+    name = "mesh_obstacle"
+    _check_resolution(name, resolution)
+    _check_size(name, size=size, drop_height=drop_height, obstacle_frame_time=obstacle_frame_time)
+    offset = np.asarray(obstacle_offset, dtype=np.float64)
+    if offset.shape != (3,):
+        raise SceneError(f"scene {name!r}: obstacle_offset must be three numbers (m), got {obstacle_offset!r}")
+    try:
+        if obstacle_obj is not None:
+            X, F, _ = load_obj_sequence(obstacle_obj, scale=obstacle_scale)
+        else:
+            _check_size(name, sphere_radius=sphere_radius, sphere_period=sphere_period)
+            if int(sphere_keyframes) < 1:
+                raise SceneError(f"scene {name!r}: sphere_keyframes must be >= 1, got {sphere_keyframes}")
+            if np.shape(sphere_travel) != (3,):
+                raise SceneError(f"scene {name!r}: sphere_travel must be three numbers (m), got {sphere_travel!r}")
+            t = np.arange(int(sphere_keyframes)) * obstacle_frame_time
+            centers = np.array([0.0, 0.0, sphere_radius]) + np.sin(2 * np.pi * t / sphere_period)[:, None] \
+                * np.asarray(sphere_travel, dtype=np.float64)
+            X, F = moving_sphere_keyframes(sphere_radius, sphere_subdivisions, centers)
+        body = TriangleMeshObstacle(X + offset, F, obstacle_frame_time, query_radius=obstacle_query_radius,
+                                    name="mesh_obstacle")
+    except MeshObstacleError as exc:
+        key = "obstacle_obj" if obstacle_obj is not None else "obstacle"
+        raise SceneError(f"scene {name!r}: {key}: {exc}") from None
+    n = int(resolution)
+    mesh = grid_mesh(size, size, n, n, origin=(-size / 2, -size / 2, drop_height))
+    _jitter(mesh, jitter, seed)
+    obstacles = ([Plane(point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0))] if ground else []) + [body]
+    return Scene(name=name, mesh=mesh, material=material, effects=frozenset(effects),
+                 frame_time=frame_time, steps_per_frame=steps_per_frame,
+                 obstacles=obstacles if "obstacles" in effects else [], thickness=thickness, friction=friction)
+
+
 CHARACTER_EFFECTS = ("membrane", "bending", "gravity", "damping", "obstacles")
 
 
 def _character_scene(name, material, body, garments, *, thickness, friction, frame_time, steps_per_frame,
-                     effects, notes=()) -> Scene:
+                     effects, notes=(), obstacle=None) -> Scene:
+    """`obstacle`: what the cloth collides with, if not the capsule `body` (a mesh body)."""
     from .garments import merge_garments
 
     mesh, pins = merge_garments(garments)
     handles = [Handle(p, g.motion) for p, g in zip(pins, garments)]
     return Scene(name=name, mesh=mesh, material=material, effects=frozenset(effects),
-                 frame_time=frame_time, steps_per_frame=steps_per_frame, obstacles=[body] if "obstacles" in effects
+                 frame_time=frame_time, steps_per_frame=steps_per_frame,
+                 obstacles=[obstacle if obstacle is not None else body] if "obstacles" in effects
                  else [], handles=handles, thickness=thickness, friction=friction, notes=tuple(notes))
+
+
+BODIES = ("capsules", "mesh")  # the character's collision body: its capsules, or a tessellated skinned mesh of them
+
+
+def _body_obstacle(name: str, body, kind: str, segments: int):
+    """The obstacle of a character scene: the capsule `body` itself, or (kind 'mesh') the same
+    capsules as a triangle mesh skinned to the joints (cloth.meshobstacle.skinned_mannequin_mesh)."""
+    if kind not in BODIES:
+        raise SceneError(f"scene {name!r}: body must be one of {list(BODIES)}, got {kind!r}")
+    if kind == "capsules":
+        return None
+    if int(segments) < 3:
+        raise SceneError(f"scene {name!r}: body_segments must be >= 3, got {segments}")
+    from .meshobstacle import skinned_mannequin_mesh
+
+    return skinned_mannequin_mesh(body, segments=int(segments), name="mannequin_mesh")
 
 
 def solo_dancer(material: Material, *, resolution: int = 48, waist_radius: float = 0.18, skirt_length: float = 0.55,
                 speed: float = 1.0, spin_hz: float = 1.0, settle: float = 0.5, blend_in: float = 1.0,
                 position=(0.0, 0.0, 0.0), heading: float = 0.0, phase: float = 0.0,
                 thickness: float = 0.005, friction: float = 0.3, frame_time: float = 0.04,
-                steps_per_frame: int = 8, seed: int = 0, effects=CHARACTER_EFFECTS) -> Scene:
+                steps_per_frame: int = 8, seed: int = 0, effects=CHARACTER_EFFECTS, body: str = "capsules",
+                body_segments: int = 12) -> Scene:
     """A dancer (the mannequin's `dance` motion) in a circle skirt pinned at the waist, which
     falls from a flat disc, drapes while the dancer stands, then flares out in the turns.
     `resolution`: segments around the waist; `phase` (s) shifts the motion, `heading` (rad) and
-    `position` (m) place the dancer on the stage."""
+    `position` (m) place the dancer on the stage. `body`: 'capsules' (analytic) or 'mesh' (the
+    capsules tessellated with `body_segments` around each, skinned to the joints)."""
     from .character import Dance, Mannequin
     from .garments import circle_skirt
 
     name = "solo_dancer"
     _check_resolution(name, resolution)
     _check_size(name, waist_radius=waist_radius, skirt_length=skirt_length, speed=speed)
+    body_kind = body
     body = Mannequin(Dance(speed=speed, spin_hz=spin_hz, settle=settle, blend_in=blend_in),
                      position=position, heading=heading, phase=phase)
+    obstacle = _body_obstacle(name, body, body_kind, body_segments)
     skirt = circle_skirt(body, waist_radius=waist_radius, length=skirt_length, resolution=max(int(resolution), 3))
     return _character_scene(name, material, body, [skirt], thickness=thickness, friction=friction,
-                            frame_time=frame_time, steps_per_frame=steps_per_frame, effects=effects)
+                            frame_time=frame_time, steps_per_frame=steps_per_frame, effects=effects,
+                            obstacle=obstacle)
 
 
 NO_SELF_COLLISION_NOTE = ("karate: the scene does not declare self_collision, so the two skirts pass through "
@@ -195,13 +271,14 @@ def karate(material: Material, *, resolution: int = 48, inner_radius: float = 0.
            speed: float = 1.0, settle: float = 0.5,
            blend_in: float = 1.0, position=(0.0, 0.0, 0.0), heading: float = 0.0, phase: float = 0.0,
            thickness: float = 0.005, friction: float = 0.3, frame_time: float = 0.04, steps_per_frame: int = 8,
-           seed: int = 0, effects=CHARACTER_EFFECTS + ("self_collision",)) -> Scene:
+           seed: int = 0, effects=CHARACTER_EFFECTS + ("self_collision",), body: str = "capsules",
+           body_segments: int = 12) -> Scene:
     """A karateka (opening pose with the fists forward, stance, punches, a front kick, a half
     turn) in a layered outfit: a long wide skirt (hakama, a tube with a seam at the back) pinned at
     the hips under a shorter, wider overskirt (also a tube with a seam) pinned `outer_waist_height`
     higher: the layers overlap in height and touch when they swing (cloth-cloth contact through
     the self_collision effect; without it the run notes that they pass through each other).
-    `resolution`: segments around each garment."""
+    `resolution`: segments around each garment; `body`, `body_segments` as in solo_dancer."""
     from .character import Karate, Mannequin
     from .garments import tube_skirt
 
@@ -212,8 +289,10 @@ def karate(material: Material, *, resolution: int = 48, inner_radius: float = 0.
     if outer_radius <= inner_radius:
         raise SceneError(f"scene {name!r}: outer_radius ({outer_radius} m) must exceed inner_radius "
                          f"({inner_radius} m): the overskirt is the outer layer")
+    body_kind = body
     body = Mannequin(Karate(speed=speed, settle=settle, blend_in=blend_in), position=position, heading=heading,
                      phase=phase)
+    obstacle = _body_obstacle(name, body, body_kind, body_segments)
     n = max(int(resolution), 3)
     garments = [tube_skirt(body, waist_radius=inner_radius, length=inner_length, resolution=n, waist_height=0.06),
                 tube_skirt(body, waist_radius=outer_radius, length=outer_length, resolution=n,
@@ -221,7 +300,7 @@ def karate(material: Material, *, resolution: int = 48, inner_radius: float = 0.
     notes = [] if "self_collision" in effects else [NO_SELF_COLLISION_NOTE]
     return _character_scene(name, material, body, garments, thickness=thickness, friction=friction,
                             frame_time=frame_time, steps_per_frame=steps_per_frame, effects=effects,
-                            notes=notes)
+                            notes=notes, obstacle=obstacle)
 
 
 def crowd_placement(count: int, spacing: float, columns: int, phase_step: float, heading_step: float):
@@ -262,7 +341,7 @@ CROWDS = {"multiple_dancers"}  # scenes whose builder makes one character of a c
 
 SCENES = {"hanging_sheet": hanging_sheet, "sheet_on_sphere": sheet_on_sphere, "flag": flag,
           "solo_dancer": solo_dancer, "karate": karate, "multiple_dancers": multiple_dancers,
-          "layered_sheets": layered_sheets, "crushed_sheet": crushed_sheet}
+          "layered_sheets": layered_sheets, "crushed_sheet": crushed_sheet, "mesh_obstacle": mesh_obstacle}
 
 
 def build_scene(name: str, material: Material, **params) -> Scene:

@@ -5,7 +5,8 @@ Given the positions x0 at the start of a step (assumed free of intersections) an
 positions x1 the integrator proposes at its end, `resolve_self_collisions` changes x1 so that
 
 1. **proximity**: vertex-face and edge-edge pairs closer than the thickness at x1 are pushed
-   apart to the thickness (mass-weighted, with the primitives' barycentric weights), with
+   apart to the thickness on the side they were on at x0 (mass-weighted, with the primitives'
+   barycentric weights, so a pair that crossed during the step is pushed back), with
    Coulomb friction on their relative tangential motion over the step;
 2. **continuous collision detection**: every vertex-face and edge-edge pair that touches
    during the linear motion x0 -> x1 (roots of the coplanarity cubic, `cloth.ccd`) is given a
@@ -50,7 +51,7 @@ class SelfCollisionParams:
     thickness: float  # m, distance kept between cloth surfaces
     friction: float = 0.3  # Coulomb coefficient, cloth against cloth
     proximity_passes: int = 2  # Gauss-Seidel passes of the repulsion
-    ccd_passes: int = 6  # Gauss-Seidel CCD passes before rigid impact zones
+    ccd_passes: int = 3  # Gauss-Seidel CCD passes before rigid impact zones
     max_zone_passes: int = 12  # impact-zone rounds before giving up (the record says what is left)
 
     def __post_init__(self):
@@ -68,9 +69,32 @@ class SelfCollisionParams:
 
 
 @njit(cache=True)
-def _candidates(face_pairs, face_nodes, face_edges, edge_nodes, n_faces, n_edges):
+def _boxes_apart(x0, x1, a0, a1, a2, b0, b1, b2, b3, pad):
+    """True when the box swept by nodes a0..a2 (a2 < 0: an edge) over x0 -> x1 and the box swept
+    by b0..b3 (b3 < 0: three nodes) are farther apart than `pad` along some axis: then the two
+    primitives cannot come within pad of each other during the step (a cheap exact rejection
+    before the cubic). x1 may be x0 for a static test."""
+    for d in range(3):
+        alo = min(x0[a0, d], x1[a0, d], x0[a1, d], x1[a1, d])
+        ahi = max(x0[a0, d], x1[a0, d], x0[a1, d], x1[a1, d])
+        if a2 >= 0:
+            alo = min(alo, x0[a2, d], x1[a2, d])
+            ahi = max(ahi, x0[a2, d], x1[a2, d])
+        blo = min(x0[b0, d], x1[b0, d], x0[b1, d], x1[b1, d], x0[b2, d], x1[b2, d])
+        bhi = max(x0[b0, d], x1[b0, d], x0[b1, d], x1[b1, d], x0[b2, d], x1[b2, d])
+        if b3 >= 0:
+            blo = min(blo, x0[b3, d], x1[b3, d])
+            bhi = max(bhi, x0[b3, d], x1[b3, d])
+        if alo > bhi + pad or blo > ahi + pad:
+            return True
+    return False
+
+
+@njit(cache=True)
+def _candidates(face_pairs, face_nodes, face_edges, edge_nodes, n_faces, n_edges, x0, x1, pad):
     """Vertex-face keys (node * F + face) and edge-edge keys (e_lo * E + e_hi) of the face
-    pairs, skipping pairs that share a node. Duplicates are removed by the caller."""
+    pairs, skipping pairs that share a node and pairs whose own swept boxes (x0 -> x1, padded)
+    are apart. Duplicates are removed by the caller."""
     P = face_pairs.shape[0]
     vf = np.empty(6 * P, dtype=np.int64)
     ee = np.empty(9 * P, dtype=np.int64)
@@ -84,6 +108,8 @@ def _candidates(face_pairs, face_nodes, face_edges, edge_nodes, n_faces, n_edges
                 i = face_nodes[f, a]
                 if i == face_nodes[g, 0] or i == face_nodes[g, 1] or i == face_nodes[g, 2]:
                     continue
+                if _boxes_apart(x0, x1, i, i, -1, face_nodes[g, 0], face_nodes[g, 1], face_nodes[g, 2], -1, pad):
+                    continue
                 vf[nv] = i * n_faces + g
                 nv += 1
         f, g = face_pairs[k, 0], face_pairs[k, 1]
@@ -95,9 +121,27 @@ def _candidates(face_pairs, face_nodes, face_edges, edge_nodes, n_faces, n_edges
                 P2, Q2 = edge_nodes[e2, 0], edge_nodes[e2, 1]
                 if p == P2 or p == Q2 or q == P2 or q == Q2:
                     continue
+                if _boxes_apart(x0, x1, p, q, -1, P2, Q2, P2, -1, pad):
+                    continue
                 ee[ne] = min(e1, e2) * n_edges + max(e1, e2)
                 ne += 1
     return vf[:nv], ee[:ne]
+
+
+@njit(cache=True)
+def _sorted_unique(keys):
+    """The distinct values of `keys`, sorted (np.unique without its Python overhead)."""
+    if keys.shape[0] == 0:
+        return keys
+    k = np.sort(keys)
+    out = np.empty_like(k)
+    out[0] = k[0]
+    n = 1
+    for j in range(1, k.shape[0]):
+        if k[j] != out[n - 1]:
+            out[n] = k[j]
+            n += 1
+    return out[:n]
 
 
 def candidate_pairs(face_nodes, face_edges, edge_nodes, x0, x1, pad):
@@ -106,8 +150,8 @@ def candidate_pairs(face_nodes, face_edges, edge_nodes, x0, x1, pad):
     lo, hi = face_boxes(face_nodes, x0, x1, pad)
     fp = self_overlaps(lo, hi)
     F, E = face_nodes.shape[0], edge_nodes.shape[0]
-    vf, ee = _candidates(fp, face_nodes, face_edges, edge_nodes, F, E)
-    vf, ee = np.unique(vf), np.unique(ee)
+    vf, ee = _candidates(fp, face_nodes, face_edges, edge_nodes, F, E, x0, x0 if x1 is None else x1, pad)
+    vf, ee = _sorted_unique(vf), _sorted_unique(ee)
     return (np.stack([vf // F, vf % F], axis=1), np.stack([ee // E, ee % E], axis=1))
 
 
@@ -203,6 +247,8 @@ def _proximity(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, h, mu, passes):
         for k in range(vf.shape[0]):
             i, f = vf[k, 0], vf[k, 1]
             a, b, c = face_nodes[f, 0], face_nodes[f, 1], face_nodes[f, 2]
+            if _boxes_apart(x1, x1, i, i, -1, a, b, c, -1, h):
+                continue
             dist, w, n = _vf_geometry(x1, i, a, b, c)
             if dist >= h:
                 continue
@@ -212,11 +258,15 @@ def _proximity(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, h, mu, passes):
                 if d0 == 0.0:
                     continue
             idx[0], idx[1], idx[2], idx[3] = i, a, b, c
-            dn = _apply(x1, inv_m, idx, w, n, _dot_w(x1, idx, w, n) + (h - dist))
+            if _dot_w(x0, idx, w, n) < 0.0:  # crossed during the step: push back to the starting side
+                n = -n
+            dn = _apply(x1, inv_m, idx, w, n, h)
             _friction(x0, x1, inv_m, idx, w, n, dn, mu)
         for k in range(ee.shape[0]):
             e1, e2 = ee[k, 0], ee[k, 1]
             p, q, P, Q = edge_nodes[e1, 0], edge_nodes[e1, 1], edge_nodes[e2, 0], edge_nodes[e2, 1]
+            if _boxes_apart(x1, x1, p, q, -1, P, Q, P, -1, h):
+                continue
             dist, w, n = _ee_geometry(x1, p, q, P, Q)
             if dist >= h:
                 continue
@@ -226,7 +276,9 @@ def _proximity(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, h, mu, passes):
                 if d0 == 0.0:
                     continue
             idx[0], idx[1], idx[2], idx[3] = p, q, P, Q
-            dn = _apply(x1, inv_m, idx, w, n, _dot_w(x1, idx, w, n) + (h - dist))
+            if _dot_w(x0, idx, w, n) < 0.0:
+                n = -n
+            dn = _apply(x1, inv_m, idx, w, n, h)
             _friction(x0, x1, inv_m, idx, w, n, dn, mu)
         if it == 0:
             first = count
@@ -250,15 +302,25 @@ def _lerp(x0, x1, i, t):
 
 
 @njit(cache=True)
-def _ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, respond, hits):
+def _ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, respond, hits, moved):
     """One Gauss-Seidel pass of CCD over the candidate pairs. Each hit (re-tested against the
     current x1, so pairs an earlier correction fixed are skipped) is written to `hits` as four
-    node indices; with `respond` it is also corrected. Returns the number of hits."""
+    node indices; with `respond` it is also corrected. `moved` (N + 1,) bool: on entry, when its
+    last entry is set, pairs none of whose nodes is flagged are skipped (their motion is
+    unchanged since the previous pass found them free); on return it flags the nodes this
+    pass corrected (last entry cleared). Returns the number of hits."""
     idx = np.empty(4, dtype=np.int64)
     nh = 0
+    only_moved = moved[moved.shape[0] - 1]
+    was = moved.copy()
+    moved[:] = False
     for k in range(vf.shape[0]):
         i, f = vf[k, 0], vf[k, 1]
         a, b, c = face_nodes[f, 0], face_nodes[f, 1], face_nodes[f, 2]
+        if only_moved and not (was[i] or was[a] or was[b] or was[c]):
+            continue
+        if _boxes_apart(x0, x1, i, i, -1, a, b, c, -1, eta):
+            continue
         t = vf_ccd(x0[i], x0[a], x0[b], x0[c], x1[i], x1[a], x1[b], x1[c], eta)
         if t < 0.0:
             continue
@@ -277,10 +339,15 @@ def _ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, respond, 
         w = np.array([1.0, -w0, -w1, -w2])
         if _dot_w(x0, idx, w, n) < 0.0:  # keep the node on the side of the face it started on
             n = -n
-        _apply(x1, inv_m, idx, w, n, sep)
+        if _apply(x1, inv_m, idx, w, n, sep) > 0.0:
+            moved[i] = moved[a] = moved[b] = moved[c] = True
     for k in range(ee.shape[0]):
         e1, e2 = ee[k, 0], ee[k, 1]
         p, q, P, Q = edge_nodes[e1, 0], edge_nodes[e1, 1], edge_nodes[e2, 0], edge_nodes[e2, 1]
+        if only_moved and not (was[p] or was[q] or was[P] or was[Q]):
+            continue
+        if _boxes_apart(x0, x1, p, q, -1, P, Q, P, -1, eta):
+            continue
         t = ee_ccd(x0[p], x1[p], x0[q], x1[q], x0[P], x1[P], x0[Q], x1[Q], eta)
         if t < 0.0:
             continue
@@ -301,7 +368,8 @@ def _ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, respond, 
                 continue
         if _dot_w(x0, idx, w, n) < 0.0:
             n = -n
-        _apply(x1, inv_m, idx, w, n, sep)
+        if _apply(x1, inv_m, idx, w, n, sep) > 0.0:
+            moved[p] = moved[q] = moved[P] = moved[Q] = True
     return nh
 
 
@@ -364,8 +432,10 @@ def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, 
     sep = CCD_SEPARATION_FRACTION * h
     vf, ee = candidate_pairs(face_nodes, face_edges, edge_nodes, x0, x1, eta)
     hits = np.empty((vf.shape[0] + ee.shape[0], 4), dtype=np.int64)
+    moved = np.zeros(x0.shape[0] + 1, dtype=bool)  # first pass: every pair
     for p in range(int(params.ccd_passes)):
-        n = _ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, True, hits)
+        n = _ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, True, hits, moved)
+        moved[-1] = True  # later passes: only pairs with a node this pass moved
         if p == 0:
             stats["self_ccd_hits"] = int(n)
         if n == 0:
@@ -377,7 +447,8 @@ def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, 
     parent = np.arange(x0.shape[0])
     in_zone = np.zeros(x0.shape[0], dtype=bool)
     for r in range(int(params.max_zone_passes) + 1):
-        n = _ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, False, hits)
+        n = _ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, False, hits,
+                      np.zeros(x0.shape[0] + 1, dtype=bool))  # every pair: zones moved rigidly
         if n == 0:
             break
         if r == int(params.max_zone_passes):

@@ -35,8 +35,8 @@ PHASES = ("sizing", "remesh", "physics", "solve", "collisions", "io", "other")
 # contact candidate for the solve (projection leaves resting nodes at exactly the thickness).
 CONTACT_BAND = 0.5
 # Columns of the self-collision record; zero in scenes without the effect.
-COLLISION_RECORD = {"self_proximity": 0, "self_ccd_hits": 0, "self_ccd_passes": 0, "impact_zones": 0,
-                    "impact_zone_rounds": 0, "self_collisions_left": 0, "intersections_found": 0,
+COLLISION_RECORD = {"self_velocity_clamped": 0, "self_proximity": 0, "self_ccd_hits": 0, "self_ccd_passes": 0,
+                    "impact_zones": 0, "impact_zone_rounds": 0, "self_collisions_left": 0, "intersections_found": 0,
                     "untangle_iterations": 0, "intersections_left": 0, "intersection_depth_m": 0.0,
                     "intersection_length_m": 0.0}
 # Bound of the contour-minimisation iterations after a remesh (the record says what is left).
@@ -97,6 +97,10 @@ class Simulation:
             from .obstacles import ObstacleSet
             self.obstacle_set = ObstacleSet(scene.obstacles)
             self.contact = resolve_obstacle_contacts
+        self.has_mesh_obstacles = False  # triangle-mesh obstacles: untangled against after remeshes
+        if self.contact is not None:
+            from .meshobstacle import TriangleMeshObstacle
+            self.has_mesh_obstacles = any(isinstance(o, TriangleMeshObstacle) for o in self.obstacle_set.obstacles)
         self.self_collision = None
         if "self_collision" in scene.effects:
             from .selfcollision import SelfCollisionParams
@@ -200,17 +204,40 @@ class Simulation:
         x_end = mesh.node_x.copy()
         s = resolve_self_collisions(mesh.face_nodes, mesh.face_edges, mesh.edge_nodes, x_start,
                                     mesh.node_x, mesh.node_m, mesh.node_pinned, self.self_collision)
+        v_max = float(np.sqrt(np.max(np.einsum("ij,ij->i", mesh.node_v, mesh.node_v)))) if len(mesh.node_v) else 0.0
         mesh.node_v += (mesh.node_x - x_end) / h
+        # Energy guard. An inelastic response cannot make a node faster than the fastest node
+        # was before it, plus the speed of a push across the whole thickness in one step; chains
+        # of Gauss-Seidel corrections in dense piles can, and such a node would fly off. Its
+        # speed is clamped to that bound (its corrected position stays) and the record counts it.
+        cap = v_max + self.self_collision.thickness / h
+        speed = np.sqrt(np.einsum("ij,ij->i", mesh.node_v, mesh.node_v))
+        over = speed > cap
+        if over.any():
+            mesh.node_v[over] *= (cap / speed[over])[:, None]
+        stats["self_velocity_clamped"] = max(stats["self_velocity_clamped"], int(over.sum()))
         for key in ("self_proximity", "self_ccd_hits", "self_ccd_passes", "impact_zones", "impact_zone_rounds"):
             stats[key] = max(stats[key], s[key])
         stats["self_collisions_left"] = s["self_collisions_left"]  # what the frame's last step left
 
+    def _mesh_obstacles(self) -> list:
+        """(positions, faces) of the triangle-mesh obstacles now (cloth.meshobstacle), [] if none."""
+        if self.contact is None:
+            return []
+        from .meshobstacle import mesh_obstacle_triangles
+        meshes = mesh_obstacle_triangles(self.obstacle_set)
+        if meshes:
+            self.obstacle_set.set_time(self.time)
+            meshes = mesh_obstacle_triangles(self.obstacle_set)
+        return meshes
+
     def untangle(self, stats: dict) -> None:
-        """Remove crossings of the cloth with itself (after a remesh); counts into `stats`."""
+        """Remove crossings of the cloth with itself (with 'self_collision') and with triangle-mesh
+        obstacles (after a remesh); only the cloth moves. Counts into `stats`."""
         from .untangle import untangle
         mesh = self.scene.mesh
         s = untangle(mesh.face_nodes, mesh.node_x, mesh.node_m, mesh.node_pinned, self.scene.thickness,
-                     UNTANGLE_ITERATIONS)
+                     UNTANGLE_ITERATIONS, obstacles=self._mesh_obstacles())
         stats.update(s)
 
     def _check(self, stats: dict) -> None:
@@ -234,7 +261,7 @@ class Simulation:
         stats.update(COLLISION_RECORD)
         if self.remesher is not None:
             changed = self.remesher.remesh(self, timings, stats)
-            if changed and self.self_collision is not None:
+            if changed and (self.self_collision is not None or self.has_mesh_obstacles):
                 t0 = time.perf_counter()
                 self.untangle(stats)
                 timings["collisions"] += time.perf_counter() - t0

@@ -23,6 +23,10 @@ crossing to first order (capped at the deepest crossing plus the thickness per i
 Repeated until no pair crosses or the iteration bound is reached; the record then says how many
 crossing pairs remain and how deep they are.
 
+Against triangle-mesh obstacles (cloth.meshobstacle), `untangle(..., obstacles=[(x, faces)])`
+tests cloth-obstacle face pairs too and moves only the cloth: the obstacle's nodes are appended
+as pinned nodes, so their components never move.
+
 Limitation (as in the method): a contour that is not closed, such as a hem that passes through
 another layer along its whole length, has a length that translations do not change (its
 gradient vanishes), so such a crossing is not removed; it is counted in the record.
@@ -33,9 +37,14 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .bvh import face_boxes, self_overlaps
+from .bvh import cross_overlaps, face_boxes, self_overlaps
 from .ccd import edge_triangle_crossing
 
+# Bound of any node's total displacement in one untangling, in thicknesses: crossings made by a
+# remesh are shallow (a collapse or flip moves the surface by a fraction of an edge near the
+# layers' gap); moving a node farther than a few thicknesses stretches the cloth more than
+# the crossing is worth.
+MAX_MOVE_THICKNESSES = 4.0
 # Faces whose normals are closer to parallel than this (|n_A x n_B|^2) are treated as coplanar:
 # their crossing has no direction and is left to the next iteration (the other pairs move them).
 COPLANAR_SIN2 = 1e-12
@@ -156,11 +165,18 @@ def _crossings(pairs, face_nodes, x, node_g, want_gradient):
     return crosses, length, depth
 
 
-def find_intersections(face_nodes: np.ndarray, x: np.ndarray, node_g: np.ndarray | None = None):
+def find_intersections(face_nodes: np.ndarray, x: np.ndarray, node_g: np.ndarray | None = None,
+                       n_fixed_faces: int = 0):
     """Crossing face pairs (K, 2) of the mesh at positions x, their crossing lengths and depths
-    (m); with node_g (N, 3) the gradient of the total crossing length is added to it."""
+    (m); with node_g (N, 3) the gradient of the total crossing length is added to it.
+    The last `n_fixed_faces` faces are obstacle triangles: tested against the others only."""
     lo, hi = face_boxes(face_nodes, x)
-    pairs = self_overlaps(lo, hi)
+    if n_fixed_faces:
+        F = face_nodes.shape[0] - int(n_fixed_faces)
+        cross = cross_overlaps(lo[:F], hi[:F], lo[F:], hi[F:]) + np.array([0, F])
+        pairs = np.vstack([self_overlaps(lo[:F], hi[:F]), cross])
+    else:
+        pairs = self_overlaps(lo, hi)
     g = node_g if node_g is not None else np.zeros((0, 3))
     crosses, length, depth = _crossings(pairs, face_nodes, x, g, node_g is not None)
     return pairs[crosses], length[crosses], depth[crosses]
@@ -197,23 +213,44 @@ def _components(face_nodes, pairs, n_nodes):
 
 
 def untangle(face_nodes: np.ndarray, x: np.ndarray, node_m: np.ndarray, pinned: np.ndarray,
-             thickness: float, max_iterations: int = 30) -> dict:
+             thickness: float, max_iterations: int = 30, obstacles=(), n_fixed_faces: int = 0) -> dict:
     """Remove crossings of the mesh with itself by contour minimisation (modifies x in place).
 
+    `obstacles`: [(positions (V, 3), faces (F, 3)), ...] triangle meshes the cloth must not cross
+    either (cloth.meshobstacle.mesh_obstacle_triangles); only the cloth moves. `n_fixed_faces`
+    (internal): the last faces are such obstacle triangles, their nodes pinned.
     Returns {'intersections_found', 'untangle_iterations', 'intersections_left',
     'intersection_depth_m' (deepest remaining), 'intersection_length_m' (remaining contour)}.
     """
     if max_iterations < 0:
         raise ValueError(f"max_iterations must be >= 0, got {max_iterations}")
+    if len(obstacles):  # append the obstacles as pinned nodes and fixed faces, untangle, copy the cloth back
+        n, parts_f, parts_x = x.shape[0], [face_nodes], [x]
+        for ox, of in obstacles:
+            parts_f.append(np.asarray(of, dtype=face_nodes.dtype) + sum(p.shape[0] for p in parts_x))
+            parts_x.append(np.asarray(ox, dtype=np.float64))
+        x_all = np.vstack(parts_x)
+        fixed = np.ones(x_all.shape[0] - n, dtype=bool)
+        stats = untangle(np.vstack(parts_f), x_all, np.concatenate([node_m, fixed.astype(float)]),
+                         np.concatenate([pinned, fixed]), thickness, max_iterations,
+                         n_fixed_faces=sum(f.shape[0] for f in parts_f[1:]))
+        x[:] = x_all[:n]
+        return stats
     stats = {"intersections_found": 0, "untangle_iterations": 0, "intersections_left": 0,
              "intersection_depth_m": 0.0, "intersection_length_m": 0.0}
+    best = None  # (crossings, contour length, positions) of the best state seen
+    x_init = x.copy()
+    max_move = MAX_MOVE_THICKNESSES * thickness
     for it in range(max_iterations + 1):
         g = np.zeros_like(x)
-        pairs, length, depth = find_intersections(face_nodes, x, g)
+        pairs, length, depth = find_intersections(face_nodes, x, g, n_fixed_faces)
         if it == 0:
             stats["intersections_found"] = len(pairs)
         if len(pairs) == 0:
             return stats
+        key = (len(pairs), float(length.sum()))
+        if best is None or key < best[:2]:
+            best = (*key, x.copy(), depth)
         if it == max_iterations:
             break
         comps, _ = _components(face_nodes, pairs, x.shape[0])
@@ -234,7 +271,19 @@ def untangle(face_nodes: np.ndarray, x: np.ndarray, node_m: np.ndarray, pinned: 
         moves *= np.minimum(1.0, cap / np.maximum(size, 1e-300))[:, None]
         for f, d in zip(free, moves):
             x[f] += d
-    stats["intersections_left"] = len(pairs)
-    stats["intersection_depth_m"] = float(depth.max())
-    stats["intersection_length_m"] = float(length.sum())
+        # no node goes farther than max_move from where the untangling found it: a tangle that
+        # needs more is left (and counted) rather than torn apart, which would store more
+        # elastic energy than any crossing costs (a tangled garment was seen to blow up so)
+        disp = x - x_init
+        dist = np.sqrt(np.einsum("ij,ij->i", disp, disp))
+        far = dist > max_move
+        if far.any():
+            x[far] = x_init[far] + disp[far] * (max_move / dist[far])[:, None]
+    # not converged: go on from the best state seen (fewest crossings, then shortest contour),
+    # never from one that the iterations made worse than they found it
+    n_best, length_best, x_best, depth_best = best
+    x[:] = x_best
+    stats["intersections_left"] = n_best
+    stats["intersection_depth_m"] = float(depth_best.max())
+    stats["intersection_length_m"] = length_best
     return stats

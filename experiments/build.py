@@ -69,7 +69,8 @@ def build_buckling(mode_cfg: DictConfig, camera):
     return _params(BucklingParams, OmegaConf.to_container(b, resolve=True), "mode.buckling")
 
 
-def build_remesher(mode_cfg: DictConfig, sizing_overrides: dict, camera=None, frame_time: float = 0.04):
+def build_remesher(mode_cfg: DictConfig, sizing_overrides: dict, camera=None, frame_time: float = 0.04,
+                   scene_view: dict | None = None):
     """The remesh stage of a remeshing mode (ConfigError names a bad mode.* key)."""
     from cloth.adaptive import AdaptiveRemesher
     from cloth.popfilter import PopFilterParams
@@ -95,7 +96,9 @@ def build_remesher(mode_cfg: DictConfig, sizing_overrides: dict, camera=None, fr
 
     _require(camera is not None, "camera",
              "mode=viewdep needs a camera path; choose one with camera=<name> (conf/camera/), e.g. camera=sheet_half")
-    view = _params(ViewParams, OmegaConf.to_container(mode_cfg.view, resolve=True), "mode.view")
+    view_cfg = OmegaConf.to_container(mode_cfg.view, resolve=True)
+    view_cfg.update(scene_view or {})  # a scene's own view settings (scene.view) win over the mode's
+    view = _params(ViewParams, view_cfg, "mode.view")
     return ViewDependentRemesher(**common, camera=camera, view=view, frame_time=frame_time)
 
 
@@ -135,6 +138,12 @@ def build_simulation(cfg: DictConfig, character: int | None = None):
     _require(cfg.scale in scales, "scale", f"scene {name!r} has no scale {cfg.scale!r}; available: {sorted(scales)}")
     params = dict(OmegaConf.to_container(cfg.scene.params, resolve=True))
     params.update(OmegaConf.to_container(scales[cfg.scale], resolve=True))
+    reference = params.pop("reference", None)
+    if cfg.get("reference", False):  # the fine nonadaptive run that accuracy is measured against
+        _require(mode == "nonadaptive", "reference", f"a reference run is nonadaptive (mode=nonadaptive), got mode={mode}")
+        _require(isinstance(reference, dict), "reference",
+                 f"scene {name!r} has no reference preset at scale {cfg.scale!r} (scene.scales.{cfg.scale}.reference)")
+        params.update(reference)
     sizing_overrides = params.pop("sizing", None) or {}
     for key in ("frame_time", "steps_per_frame", "resolution"):
         if key in params:
@@ -157,6 +166,8 @@ def build_simulation(cfg: DictConfig, character: int | None = None):
     camera = build_camera(cfg)
     stills = cfg.output.get("stills_every", 0)
     _require(isinstance(stills, int) and stills >= 0, "output.stills_every", f"must be an integer >= 0, got {stills!r}")
+    states = cfg.output.get("states_every", 1)
+    _require(isinstance(states, int) and states >= 0, "output.states_every", f"must be an integer >= 0, got {states!r}")
     _require(stills == 0 or camera is not None, "output.stills_every",
              "stills are drawn from the camera: choose one with camera=<name> (conf/camera/)")
     buckling = build_buckling(cfg.mode, camera)
@@ -165,6 +176,9 @@ def build_simulation(cfg: DictConfig, character: int | None = None):
     except (SceneError, MeshError) as exc:
         raise ConfigError(f"scene: {exc}") from None
     scene.camera = camera
-    remesher = build_remesher(cfg.mode, sizing_overrides, camera, scene.frame_time) if mode in REMESHING_MODES else None
+    scene_view = cfg.scene.get("view")
+    scene_view = OmegaConf.to_container(scene_view, resolve=True) if scene_view is not None else None
+    remesher = (build_remesher(cfg.mode, sizing_overrides, camera, scene.frame_time, scene_view)
+                if mode in REMESHING_MODES else None)
     return (Simulation(scene, solver=solver, remesher=remesher, max_speed=float(cfg.max_speed), buckling=buckling),
             int(cfg.frames))

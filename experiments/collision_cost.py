@@ -48,7 +48,7 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     rows = []
     for n in args.resolutions:
-        r = run(["scene=crushed_sheet", "mode=nonadaptive", f"scene.params.resolution={n}"], args.frames)
+        r = run(["scene=crushed_sheet", "mode=nonadaptive", f"scene.scales.small.resolution={n}"], args.frames)
         rows.append({"run": f"crushed_sheet n={n}", **r})
         print(rows[-1], flush=True)
     effects = "[membrane,bending,gravity,damping,obstacles,self_collision]"

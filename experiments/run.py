@@ -2,7 +2,10 @@
 
 Everything is built and checked from the config before any work starts; a config error stops
 with one message naming the key. The run folder (Hydra's output dir) receives the resolved
-config, manifest.json, frames.parquet, summary.json, recording.rrd and optional OBJ frames.
+config, manifest.json, frames.parquet, summary.json, recording.rrd and optional OBJ frames;
+every ``output.checkpoint_every`` frames the whole state goes to checkpoint/state.pkl, from which
+``python -m experiments.resume RUN_DIR`` continues a killed run (``python -m experiments.replay
+RUN_DIR`` re-runs a folder and checks that it reproduces).
 
 A crowd scene (``scene=multiple_dancers``) runs each character as its own simulation in its own
 sub-folder (``dancer_00`` ...), `crowd_jobs` at a time in parallel processes (joblib), all under
@@ -21,20 +24,30 @@ from omegaconf import DictConfig, OmegaConf
 from experiments.build import ConfigError, build_simulation, crowd_size
 
 
-def _recorder(cfg: DictConfig, out_dir: Path, root: str = "world", recording_id=None, log_camera=True):
+def _recorder(cfg: DictConfig, out_dir: Path, root: str = "world", recording_id=None, log_camera=True,
+              name: str = "recording.rrd"):
     if not cfg.output.rerun:
         return None
     from cloth.io.recorder import RerunRecorder
-    return RerunRecorder(out_dir / "recording.rrd", app_id=f"cloth_{cfg.scene.name}", root=root,
+    return RerunRecorder(out_dir / name, app_id=f"cloth_{cfg.scene.name}", root=root,
                          recording_id=recording_id, log_camera=log_camera)
 
 
-def _write_inputs(cfg: DictConfig, out_dir: Path) -> None:
-    from cloth.io.manifest import environment_manifest, write_json_atomic
+def _write_inputs(cfg: DictConfig, out_dir: Path, recording_id: str | None = None) -> None:
+    from cloth.io.manifest import environment_manifest, write_json_atomic, write_text_atomic
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
-    write_json_atomic(out_dir / "manifest.json", environment_manifest(int(cfg.seed)))
+    write_text_atomic(out_dir / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
+    # the Rerun recording id: a resumed run continues the recording under the same id
+    write_json_atomic(out_dir / "manifest.json", environment_manifest(int(cfg.seed), {"recording_id": recording_id}))
+
+
+def checkpoint_every(cfg: DictConfig) -> int:
+    """output.checkpoint_every (0 when absent: configs of older runs); ConfigError if bad."""
+    every = cfg.output.get("checkpoint_every", 0)
+    if not (isinstance(every, int) and not isinstance(every, bool) and every >= 0):
+        raise ConfigError(f"output.checkpoint_every: must be an integer >= 0 (frames; 0: never), got {every!r}")
+    return every
 
 
 def run_character(config_yaml: str, character: int, out_dir: str, recording_id: str) -> dict:
@@ -49,7 +62,8 @@ def run_character(config_yaml: str, character: int, out_dir: str, recording_id: 
                          log_camera=character == 0)
     try:
         return run(sim, n_frames, out, recorder=recorder, obj_every=int(cfg.output.obj_every), progress=False,
-                   stills_every=int(cfg.output.get("stills_every", 0)))
+                   stills_every=int(cfg.output.get("stills_every", 0)),
+                   states_every=int(cfg.output.get("states_every", 1)), checkpoint_every=checkpoint_every(cfg))
     except SimulationDiverged:  # its summary says so; the other characters go on
         import json
         return json.loads((out / "summary.json").read_text())
@@ -64,10 +78,11 @@ def run_crowd(cfg: DictConfig, out_dir: Path, count: int) -> dict:
     from cloth.runner import combine_crowd
 
     build_simulation(cfg, character=0)  # every config check, before any output
-    _write_inputs(cfg, out_dir)
+    checkpoint_every(cfg)
+    recording_id = str(uuid.uuid4())
+    _write_inputs(cfg, out_dir, recording_id)
     config_yaml = OmegaConf.to_yaml(cfg, resolve=True)
     dirs = [out_dir / f"dancer_{i:02d}" for i in range(count)]
-    recording_id = str(uuid.uuid4())
     jobs = min(int(cfg.crowd_jobs), count)
     args = [(config_yaml, i, str(d), recording_id) for i, d in enumerate(dirs)]
     try:
@@ -83,22 +98,34 @@ def run_crowd(cfg: DictConfig, out_dir: Path, count: int) -> dict:
 
 def run_from_config(cfg: DictConfig, out_dir: Path) -> dict:
     """Validate, build, run and record; returns the summary (raises ConfigError first if bad)."""
+    import uuid
+
     from cloth.runner import run
 
     count = crowd_size(cfg)
     if count is not None:
         return run_crowd(cfg, out_dir, count)
     sim, n_frames = build_simulation(cfg)  # every config check happens here, before any output
-    _write_inputs(cfg, out_dir)
-    return run(sim, n_frames, out_dir, recorder=_recorder(cfg, out_dir), obj_every=int(cfg.output.obj_every),
-               progress=bool(cfg.output.progress), stills_every=int(cfg.output.get("stills_every", 0)))
+    every = checkpoint_every(cfg)
+    recording_id = str(uuid.uuid4())
+    _write_inputs(cfg, out_dir, recording_id)
+    return run(sim, n_frames, out_dir, recorder=_recorder(cfg, out_dir, recording_id=recording_id),
+               obj_every=int(cfg.output.obj_every),
+               progress=bool(cfg.output.progress), stills_every=int(cfg.output.get("stills_every", 0)),
+               states_every=int(cfg.output.get("states_every", 1)), checkpoint_every=every)
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
     from cloth.simulation import SimulationDiverged
 
-    out_dir = Path(hydra.core.hydra_config.HydraConfig.get().runtime.output_dir)
+    from hydra.types import RunMode
+
+    hydra_cfg = hydra.core.hydra_config.HydraConfig.get()
+    out_dir = Path(hydra_cfg.runtime.output_dir)
+    # In a multirun a run that goes bad must not stop the others: its summary.json says
+    # 'diverged' and the aggregation reports it; a single run exits non-zero.
+    multirun = hydra_cfg.mode == RunMode.MULTIRUN
     try:
         summary = run_from_config(cfg, out_dir)
     except ConfigError as exc:
@@ -106,6 +133,8 @@ def main(cfg: DictConfig) -> None:
         sys.exit(2)
     except SimulationDiverged as exc:
         print(f"run stopped: {exc}\nframes written so far are in {out_dir}", file=sys.stderr)
+        if multirun:
+            return
         sys.exit(3)
     print(f"run folder: {out_dir}")
     if "characters" in summary:
@@ -119,7 +148,8 @@ def main(cfg: DictConfig) -> None:
         print(f"  recording: {out_dir / rrd}  (view with: rerun {out_dir / rrd})")
     if summary.get("status") not in (None, "completed"):
         print(f"  status: {summary['status']}: {summary.get('message', '')}", file=sys.stderr)
-        sys.exit(3)
+        if not multirun:
+            sys.exit(3)
 
 
 if __name__ == "__main__":

@@ -33,7 +33,8 @@ def ccd_hits(mesh, x0, x1, thickness=THICKNESS):
     vf, ee = candidate_pairs(mesh.face_nodes, mesh.face_edges, mesh.edge_nodes, x0, x1, eta)
     hits = np.empty((len(vf) + len(ee), 4), dtype=np.int64)
     inv_m = np.ones(mesh.n_nodes)
-    return _ccd_pass(vf, ee, mesh.face_nodes, mesh.edge_nodes, x0, x1.copy(), inv_m, eta, 0.0, False, hits)
+    return _ccd_pass(vf, ee, mesh.face_nodes, mesh.edge_nodes, x0, x1.copy(), inv_m, eta, 0.0, False, hits,
+                     np.zeros(x0.shape[0] + 1, dtype=bool))
 
 
 def two_sheets(n=6, gap=0.02, size=0.3, shift=(0.013, 0.007)):
@@ -268,3 +269,41 @@ def test_layered_sheets_adaptive_modes_untangle_after_remesh(mode, camera):
         assert rec["intersections_left"] == 0 and rec["self_collisions_left"] == 0, rec["frame"]
         assert crossings(sim) == 0, rec["frame"]
     assert rec["remeshed"] == 1
+
+
+def test_untangle_moves_no_node_beyond_its_bound_and_keeps_the_best_state():
+    """A tangle too deep to fix (the open hem through a sheet, at a thickness whose move bound
+    is far below the crossing's depth): every node stays within MAX_MOVE_THICKNESSES thicknesses
+    of where it was, and what is left is never more than what was found."""
+    from cloth.untangle import MAX_MOVE_THICKNESSES
+    mesh, _ = crossed_sheets()
+    x = mesh.node_x
+    x0 = x.copy()
+    thin = 1e-3  # m: bound 4 mm, much less than the sheets' crossing depth
+    stats = untangle(mesh.face_nodes, x, mesh.node_m, mesh.node_pinned, thin, max_iterations=20)
+    moved = np.linalg.norm(x - x0, axis=1)
+    assert moved.max() <= MAX_MOVE_THICKNESSES * thin * (1 + 1e-9)
+    assert 0 < stats["intersections_left"] <= stats["intersections_found"]
+    assert stats["intersections_left"] == len(find_intersections(mesh.face_nodes, x)[0])
+
+
+def test_collision_response_cannot_make_a_node_faster_than_the_guard():
+    """The energy guard: after a step of two layers colliding, no node is faster than the fastest
+    node before the response plus thickness / step (an inelastic response stays below that)."""
+    sim = Simulation(layered_sheets(COTTON, resolution=8))
+    for _ in range(12):  # the upper sheet lands on the lower one
+        sim.advance_frame()
+    h = sim.scene.dt
+    mesh = sim.scene.mesh
+    half = mesh.n_nodes // 2  # the two sheets: the first and the second half of the nodes
+    upper = slice(0, half) if mesh.node_x[:half, 2].mean() > mesh.node_x[half:, 2].mean() else slice(half, None)
+    mesh.node_v[upper] += np.array([0.0, 0.0, -3.0])  # slam the upper layer into the lower
+    x_start = mesh.node_x.copy()
+    mesh.node_x += h * mesh.node_v
+    v_before = float(np.sqrt(np.max(np.einsum("ij,ij->i", mesh.node_v, mesh.node_v))))
+    stats = {k: 0 for k in ("self_velocity_clamped", "self_proximity", "self_ccd_hits", "self_ccd_passes",
+                            "impact_zones", "impact_zone_rounds", "self_collisions_left")}
+    sim._resolve_self_collisions(x_start, h, stats)
+    v_after = float(np.sqrt(np.max(np.einsum("ij,ij->i", mesh.node_v, mesh.node_v))))
+    assert v_after <= v_before + sim.self_collision.thickness / h + 1e-9
+    assert stats["self_ccd_hits"] + stats["self_proximity"] > 0  # the layers did collide

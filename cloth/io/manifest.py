@@ -6,6 +6,8 @@ A result file is written to a temporary file in the same folder and renamed over
 
 from __future__ import annotations
 
+import copy
+import functools
 import json
 import os
 import platform
@@ -19,7 +21,8 @@ from pathlib import Path
 
 PACKAGES = ("numpy", "scipy", "numba", "llvmlite", "hydra-core", "omegaconf", "pandas", "pyarrow",
             "rerun-sdk", "trimesh", "tqdm", "matplotlib", "cloth")
-ENV_VARS = ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "CI")
+ENV_VARS = ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "PYTHONHASHSEED",
+            "CI")
 
 
 def _version(pkg: str) -> str:
@@ -48,12 +51,41 @@ def _cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
+def _blas() -> str:
+    """numpy's BLAS/LAPACK library and version (threaded BLAS could change summation order)."""
+    try:
+        import numpy as np
+        b = np.show_config(mode="dicts")["Build Dependencies"]["blas"]
+        return f"{b.get('name')} {b.get('version')}"
+    except Exception:  # older numpy without mode='dicts'
+        return "unknown"
+
+
+@functools.lru_cache(maxsize=1)
+def _code_version() -> dict:
+    """Which code produced a result: git commit, dirty flag, a hash of the uncommitted diff of
+    tracked files (None when clean), python and the numerical packages' versions."""
+    import hashlib
+
+    commit = _git("rev-parse", "HEAD")
+    status = _git("status", "--porcelain", "--untracked-files=no") if commit else None
+    diff = _git("diff", "HEAD") if status else None
+    return {"git_commit": commit, "git_dirty": (bool(status) if status is not None else None),
+            "git_diff_sha1": hashlib.sha1(diff.encode()).hexdigest() if diff else None,
+            "python": sys.version.split()[0],
+            "packages": {p: _version(p) for p in ("numpy", "scipy", "numba", "llvmlite", "cloth")}}
+
+
+def code_version() -> dict:
+    """Which code produced a result (see _code_version); computed once per process."""
+    return copy.deepcopy(_code_version())
+
+
 def environment_manifest(seed: int, extra: dict | None = None) -> dict:
     """What a reader needs to reproduce or compare a run: versions, commit, machine, seed."""
     import numba
 
-    commit = _git("rev-parse", "HEAD")
-    status = _git("status", "--porcelain", "--untracked-files=no") if commit else None
+    code = code_version()
     manifest = {
         "timestamp_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "seed": int(seed),
@@ -62,11 +94,13 @@ def environment_manifest(seed: int, extra: dict | None = None) -> dict:
         "hostname": socket.gethostname(),
         "cpu_model": _cpu_model(),
         "cpu_count": os.cpu_count(),
-        "numba_threads": numba.get_num_threads(),
+        "numba_threads": numba.get_num_threads(),  # results are identical for any count (see experiments.replay)
+        "blas": _blas(),
         "env": {k: os.environ.get(k) for k in ENV_VARS},
         "packages": {p: _version(p) for p in PACKAGES},
-        "git_commit": commit,
-        "git_dirty": (bool(status) if status is not None else None),
+        "git_commit": code["git_commit"],
+        "git_dirty": code["git_dirty"],
+        "git_diff_sha1": code["git_diff_sha1"],  # which uncommitted changes (sha1 of `git diff HEAD`)
         "argv": sys.argv,
     }
     if extra:
@@ -74,11 +108,28 @@ def environment_manifest(seed: int, extra: dict | None = None) -> dict:
     return manifest
 
 
+def _umask() -> int:
+    """The process umask, read without changing it where Linux allows (no window for threads)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _umask()
+
+
 def _atomic_path(path: Path):
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
+    os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; give result files the usual permissions
     return path, Path(tmp)
 
 

@@ -19,15 +19,17 @@ QUALITY_MIN. The cases:
 
 Not all cases hold yet: STABLE lists those verified to pass. The others are run and reported
 by `python -m experiments.stability` (ok = False with the failing check) and are open work of
-the collisions issue: with one step per frame or a 100x stiffer material the untangling after
-remeshes leaves crossings (hems through the other layer: open contours).
+the collisions issue: with one step per frame or a 100x stiffer material the layered sheets
+diverge after remeshes (speeds above max_speed), and the crushed sheet in adaptive mode is
+remeshed into crossings faster than the untangling removes them.
 """
 
 import pytest
 
 from experiments.stability import QUALITY_MIN, case, run_case
 
-STABLE = ["nu_out_0.001", "buckling_k1", "cut_every_3_frames", "orbit_1s", "thin_triangles"]
+STABLE = ["nu_out_0.001", "buckling_k1", "buckling_k50", "cut_every_3_frames", "orbit_1s",
+          "karate_2x", "thin_triangles"]
 
 
 @pytest.mark.slow

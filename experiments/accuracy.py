@@ -1,0 +1,277 @@
+"""Screen-space accuracy of runs against a fine reference of the same scene and camera.
+
+    python -m experiments.accuracy RUN_DIR [RUN_DIR ...] --reference REF_DIR [--resolution-scale 1.0]
+
+Reads the per-frame states (``states/frame_NNNNN.npz``, written by the runner with
+``output.states_every``) of every run and of the reference, rebuilds the camera path from the
+run's ``config.yaml``, renders both at every frame they both have (cloth.screenspace) and writes
+into each RUN_DIR:
+
+* ``accuracy.parquet``: one row per frame, columns frame, error_px, silhouette_px, surface_px,
+  cloth_px_run, cloth_px_ref, iou, offscreen_distance_m (definitions: cloth.screenspace);
+* ``accuracy.json``: ``<column>_mean`` and ``<column>_max`` of every numeric column (NaN frames
+  left out; null when a column has no value), ``reference`` (the reference folder), ``frames``
+  (frames evaluated), ``resolution`` ([width, height] of the rendered images),
+  ``resolution_scale`` and ``definition`` (the definitions, with their version).
+
+Every run is checked against the reference before any work (same scene and scene parameters
+apart from the mesh resolution, same camera config, same frame time, states for every frame of
+the run); a mismatch stops with one message naming it. A crowd run (one sub-folder per
+character) is rendered as one image: all characters' cloth and bodies under the one camera.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+COLUMNS = ("frame", "error_px", "silhouette_px", "surface_px", "cloth_px_run", "cloth_px_ref", "iou",
+           "offscreen_distance_m")
+# Frame times of a run and its reference are equal if they agree to this many seconds (config
+# values pass through YAML; the times of states are multiples of the frame time).
+TIME_TOL_S = 1e-9
+# Scene parameters that may differ between a run and its reference: the mesh resolution and the
+# presets that set it (the reference is finer by design).
+RESOLUTION_KEYS = ("resolution", "sizing", "reference")
+
+
+class AccuracyError(ValueError):
+    """A run folder that cannot be evaluated against the reference; the message names why."""
+
+
+def definition() -> str:
+    """The definitions of the columns, with their version (cloth.screenspace's docstring)."""
+    from cloth import screenspace
+
+    doc = screenspace.__doc__
+    start = doc.index("Definitions (version")
+    return doc[start:].strip().replace(":data:`DEFINITION_VERSION`", screenspace.DEFINITION_VERSION)
+
+
+# ---- reading run folders -----------------------------------------------------------------------
+
+def _config(run_dir: Path) -> dict:
+    from omegaconf import OmegaConf
+
+    f = run_dir / "config.yaml"
+    if not f.is_file():
+        raise AccuracyError(f"{run_dir}: no config.yaml (is it a run folder of experiments.run?)")
+    return OmegaConf.to_container(OmegaConf.load(f), resolve=True)
+
+
+def _scene_params(cfg: dict) -> dict:
+    """The scene parameters the run used: scene.params, its scale preset, the reference preset
+    of a reference run (as experiments.build does)."""
+    scene = cfg.get("scene") or {}
+    params = dict(scene.get("params") or {})
+    preset = dict((scene.get("scales") or {}).get(cfg.get("scale"), {}) or {})
+    ref = preset.pop("reference", None)
+    params.update(preset)
+    if cfg.get("reference") and isinstance(ref, dict):
+        params.update(ref)
+    return params
+
+
+def state_files(run_dir: Path) -> dict[int, list[Path]]:
+    """frame -> state files of that frame (one per character of a crowd); {} without states."""
+    dirs = [run_dir / "states"] if (run_dir / "states").is_dir() else sorted(
+        d / "states" for d in run_dir.glob("dancer_*") if (d / "states").is_dir())
+    per_dir = []
+    for d in dirs:
+        files = {}
+        for f in d.glob("frame_*.npz"):
+            try:
+                files[int(f.stem.split("_")[1])] = f
+            except (IndexError, ValueError):
+                continue
+        per_dir.append(files)
+    if not per_dir:
+        return {}
+    frames = set(per_dir[0]).intersection(*per_dir[1:])  # a crowd: frames every character has
+    return {k: [files[k] for files in per_dir] for k in sorted(frames)}
+
+
+def _first_difference(a, b, key: str):
+    """(key path, value in a, value in b) of the first difference of two nested configs, or None."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        for k in sorted(set(a) | set(b), key=str):
+            d = _first_difference(a.get(k), b.get(k), f"{key}.{k}")
+            if d is not None:
+                return d
+        return None
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        for i, (x, y) in enumerate(zip(a, b)):
+            d = _first_difference(x, y, f"{key}[{i}]")
+            if d is not None:
+                return d
+        return None
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
+        return None if float(a) == float(b) else (key, a, b)
+    return None if a == b else (key, a, b)
+
+
+def check_pair(run_dir, ref_dir) -> list[int]:
+    """The frames to evaluate (every frame the run has a state for); AccuracyError names a mismatch."""
+    run_dir, ref_dir = Path(run_dir), Path(ref_dir)
+    for d in (run_dir, ref_dir):
+        if not d.is_dir():
+            raise AccuracyError(f"{d}: no such folder")
+    run_cfg, ref_cfg = _config(run_dir), _config(ref_dir)
+    name = lambda c: (c.get("scene") or {}).get("name")  # noqa: E731
+    if name(run_cfg) != name(ref_cfg):
+        raise AccuracyError(f"{run_dir}: scene {name(run_cfg)!r} differs from the reference's {name(ref_cfg)!r} ({ref_dir})")
+    cam = run_cfg.get("camera")
+    if not cam or cam.get("type") in (None, "none"):
+        raise AccuracyError(f"{run_dir}: the run has no camera (camera: none); screen-space accuracy needs one")
+    diff = _first_difference(cam, ref_cfg.get("camera"), "camera")
+    if diff is not None:
+        raise AccuracyError(f"{run_dir}: camera config differs from the reference's at {diff[0]}: "
+                            f"run {diff[1]!r}, reference {diff[2]!r} ({ref_dir})")
+    pr, pf = _scene_params(run_cfg), _scene_params(ref_cfg)
+    tr, tf = pr.get("frame_time"), pf.get("frame_time")
+    if tr is None or tf is None or abs(float(tr) - float(tf)) > TIME_TOL_S:
+        raise AccuracyError(f"{run_dir}: frame time {tr} s differs from the reference's {tf} s ({ref_dir})")
+    for k in RESOLUTION_KEYS:
+        pr.pop(k, None)
+        pf.pop(k, None)
+    diff = _first_difference(pr, pf, "scene.params")
+    if diff is not None:
+        raise AccuracyError(f"{run_dir}: {diff[0]} differs from the reference's: run {diff[1]!r}, "
+                            f"reference {diff[2]!r} ({ref_dir})")
+    run_states, ref_states = state_files(run_dir), state_files(ref_dir)
+    for d, states in ((run_dir, run_states), (ref_dir, ref_states)):
+        if not states:
+            raise AccuracyError(f"{d}: no per-frame states (states/frame_NNNNN.npz); run it again with "
+                                f"output.states_every=1")
+    missing = sorted(set(run_states) - set(ref_states))
+    if missing:
+        have = sorted(ref_states)
+        raise AccuracyError(
+            f"{run_dir}: the reference has no state for {len(missing)} of the run's {len(run_states)} frames "
+            f"(first {missing[:5]}); the reference has frames {have[0]}..{have[-1]} ({len(have)} states, {ref_dir}): "
+            f"run the reference for at least {max(run_states)} frames with output.states_every=1")
+    if not isinstance(ref_cfg.get("mode"), dict) or ref_cfg["mode"].get("name") != "nonadaptive":
+        print(f"note: the reference {ref_dir} is not a nonadaptive run", file=sys.stderr)
+    return sorted(run_states)
+
+
+def _load(files: list[Path]) -> dict:
+    from cloth.screenspace import load_state, merge_states
+
+    return merge_states([load_state(f) for f in files])
+
+
+# ---- evaluation --------------------------------------------------------------------------------
+
+def evaluate_runs(run_dirs, ref_dir, resolution_scale: float = 1.0) -> list[pd.DataFrame]:
+    """One accuracy table per run (the columns of COLUMNS, one row per frame); every run is checked
+    before any work. The reference is rendered once per frame for all runs."""
+    from cloth.camera import path_from_config
+    from cloth.screenspace import frame_errors, offscreen_distance, render_state
+
+    if not (isinstance(resolution_scale, (int, float)) and math.isfinite(resolution_scale) and resolution_scale > 0):
+        raise AccuracyError(f"--resolution-scale must be a number > 0, got {resolution_scale!r}")
+    run_dirs, ref_dir = [Path(d) for d in run_dirs], Path(ref_dir)
+    frames = [check_pair(d, ref_dir) for d in run_dirs]
+    ref_states = state_files(ref_dir)
+    run_states = [state_files(d) for d in run_dirs]
+    from cloth.view import ViewError
+
+    try:
+        paths = [path_from_config(_config(d)["camera"]) for d in run_dirs]
+    except (ViewError, KeyError, TypeError, ValueError) as exc:
+        raise AccuracyError(f"camera config cannot be built: {exc}") from None
+    rows = [[] for _ in run_dirs]
+    for frame in sorted(set().union(*frames)):
+        ref = _load(ref_states[frame])
+        ref_img = {}  # the reference's image under each distinct camera (runs share one path)
+        for i, d in enumerate(run_dirs):
+            if frame not in run_states[i]:
+                continue
+            run = _load(run_states[i][frame])
+            if abs(run["time"] - ref["time"]) > TIME_TOL_S:
+                raise AccuracyError(f"{d}: frame {frame} is at t = {run['time']} s, the reference's at "
+                                    f"t = {ref['time']} s ({ref_dir})")
+            camera = paths[i].camera_at(ref["time"])
+            if camera not in ref_img:
+                ref_img[camera] = render_state(camera, ref, resolution_scale)
+            errors = frame_errors(render_state(camera, run, resolution_scale), ref_img[camera])
+            off, _ = offscreen_distance(camera, run["node_x"], ref["node_x"], ref["face_nodes"])
+            rows[i].append({"frame": frame, **errors, "offscreen_distance_m": off})
+    return [pd.DataFrame(r, columns=list(COLUMNS)).astype({"frame": np.int64}) for r in rows]
+
+
+def evaluate_run(run_dir, ref_dir, resolution_scale: float = 1.0) -> pd.DataFrame:
+    """The accuracy table of one run against a reference (see evaluate_runs); writes nothing."""
+    return evaluate_runs([run_dir], ref_dir, resolution_scale)[0]
+
+
+def _stat(values: pd.Series, fn) -> float | None:
+    v = values.to_numpy(dtype=np.float64)
+    v = v[np.isfinite(v)]
+    return float(fn(v)) if v.size else None
+
+
+def summarize(table: pd.DataFrame, ref_dir, resolution, resolution_scale: float) -> dict:
+    """accuracy.json: <column>_mean and <column>_max of every numeric column, reference, frames,
+    resolution, resolution_scale, definition."""
+    out = {}
+    for c in table.columns:
+        if pd.api.types.is_numeric_dtype(table[c]):
+            out[f"{c}_mean"] = _stat(table[c], np.mean)
+            out[f"{c}_max"] = _stat(table[c], np.max)
+    out.update(reference=str(Path(ref_dir).resolve()), frames=int(len(table)),
+               resolution=[int(resolution[0]), int(resolution[1])], resolution_scale=float(resolution_scale),
+               definition=definition())
+    return out
+
+
+def image_resolution(run_dir, resolution_scale: float) -> tuple[int, int]:
+    """[width, height] of the images rendered for a run (its camera's image times the scale)."""
+    from cloth.camera import path_from_config
+
+    cam = path_from_config(_config(Path(run_dir))["camera"]).camera_at(0.0)
+    h = max(int(round(cam.height * resolution_scale)), 1)
+    return max(int(round(cam.width * resolution_scale)), 1), h
+
+
+def write_accuracy(run_dir, table: pd.DataFrame, ref_dir, resolution_scale: float = 1.0) -> dict:
+    """Write accuracy.parquet and accuracy.json into `run_dir` (atomically); returns the summary."""
+    from cloth.io.manifest import write_json_atomic, write_parquet_atomic
+
+    run_dir = Path(run_dir)
+    summary = summarize(table, ref_dir, image_resolution(run_dir, resolution_scale), resolution_scale)
+    write_parquet_atomic(run_dir / "accuracy.parquet", table)
+    write_json_atomic(run_dir / "accuracy.json", summary)
+    return summary
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m experiments.accuracy", description=__doc__.split("\n")[0])
+    parser.add_argument("runs", nargs="+", metavar="RUN_DIR", help="run folders to evaluate")
+    parser.add_argument("--reference", required=True, metavar="REF_DIR",
+                        help="the fine nonadaptive reference run of the same scene and camera")
+    parser.add_argument("--resolution-scale", type=float, default=1.0,
+                        help="render at this times the camera's image size (distances stay in camera pixels)")
+    args = parser.parse_args(argv)
+    try:
+        tables = evaluate_runs(args.runs, args.reference, args.resolution_scale)
+    except AccuracyError as exc:
+        print(f"accuracy error: {exc}", file=sys.stderr)
+        return 2
+    for run_dir, table in zip(args.runs, tables):
+        s = write_accuracy(run_dir, table, args.reference, args.resolution_scale)
+        fmt = lambda v, u: "n/a" if v is None else f"{v:.3g} {u}"  # noqa: E731
+        print(f"{run_dir}: {s['frames']} frames  error {fmt(s['error_px_mean'], 'px')} mean, "
+              f"{fmt(s['error_px_max'], 'px')} max  iou {fmt(s['iou_mean'], '')} "
+              f"off-screen {fmt(s['offscreen_distance_m_mean'], 'm')}  -> {Path(run_dir) / 'accuracy.parquet'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

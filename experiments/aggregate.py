@@ -1,0 +1,616 @@
+"""Aggregate run folders into tables (never re-simulating): the runs table, the per-frame table and
+the paper's Table 1.
+
+    python -m experiments.aggregate ROOT [ROOT ...] [--out DIR]
+
+Finds every run folder under the roots, loads each (config.yaml, frames.parquet, summary.json and,
+when present, accuracy.json / accuracy.parquet), prints Table 1 and a warning for every folder
+that cannot be used; with ``--out`` it writes ``runs.csv``, ``frames.parquet`` (every frame of
+every run), ``table1.csv``/``.md``/``.tex``, ``table1_paper.csv`` and ``problems.txt`` there.
+
+Run folders. A directory is a run folder when it holds ``config.yaml``, or both
+``frames.parquet`` and ``summary.json`` (hidden directories such as Hydra's ``.hydra/`` are
+never looked into). The search does not descend into a run folder, so the characters of a crowd
+(``dancer_NN/``) are never counted as runs: the crowd is its top-level folder (per-frame sums).
+A folder is reported by name with its reason and skipped when its config, frames or summary is
+missing or unreadable, a required column (:data:`REQUIRED_FRAME_COLUMNS`) is missing or holds
+NaN, its status is not ``completed`` or it has fewer frames than requested. An unreadable
+accuracy.json/accuracy.parquet is reported too; the run is kept without accuracy.
+
+Table 1 (:func:`table1`). One row per (scene, scale, mode, variant); the fine reference runs
+(``reference: true``) are left out. When several runs share that key the latest one is used (the
+manifest's ``timestamp_utc``, else the config's modification time) and the others are listed in
+the table's notes as superseded. Speed-up = mean time per frame of the ``adaptive`` run of the
+same scene and scale (its default variant when there are several) / this row's mean time per
+frame. Time per frame is the frame's ``wall_s`` (every phase, I/O included, as the paper's
+Time/Frame).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+import yaml
+
+from cloth.io.manifest import write_parquet_atomic, write_text_atomic
+
+REQUIRED_FRAME_COLUMNS = ("frame", "faces", "verts", "wall_s")  # what Table 1 and Fig. 8 are made of
+RUN_MARKERS = ("config.yaml", "frames.parquet", "summary.json")
+MODES = ("nonadaptive", "adaptive", "viewdep")
+# Swept parameters: runs-table column -> dotted config key (present in mode viewdep / when set).
+SWEPT = {"nu_out": "mode.view.nu_out", "margin": "mode.view.margin", "T": "mode.view.anticipation_frames",
+         "anticipation": "mode.view.anticipation"}
+SWEPT_COLUMNS = ("nu_out", "margin", "T", "anticipation", "buckling_k", "buckling_mode")
+ACCURACY_KEYS = ("error_px_mean", "error_px_max", "silhouette_px_mean", "surface_px_mean", "iou_mean",
+                 "offscreen_distance_m_mean")
+STAT_COLUMNS = {"faces": "faces", "verts": "verts", "wall_s": "time"}  # frames column -> Table 1 name
+TABLE1_COLUMNS = ("scene", "scale", "mode", "variant", "frames", "faces_min", "faces_max", "faces_mean",
+                  "verts_min", "verts_max", "verts_mean", "time_min_s", "time_max_s", "time_mean_s", "speedup",
+                  "baseline", "run")
+PAPER_SCENES = {"karate": "Karate", "solo_dancer": "Solo Dancer", "multiple_dancers": "Multiple Dancers"}
+MODE_LABELS = {"nonadaptive": "Non-adaptive", "adaptive": "Adaptive", "viewdep": "View-dependent"}
+
+# The paper's Table 1 (Koh, Narain, O'Brien 2015, TVCG; 4 threads of a Xeon E5-2680 v2), as printed:
+# scene -> mode -> (faces min, max, mean, vertices min, max, mean, s/frame min, max, mean, speed-up).
+PAPER_TABLE1 = {
+    "karate": {
+        "nonadaptive": (123790, 123790, 123790, 63889, 63889, 63889, 136.47, 288.01, 161.44, 0.49),
+        "adaptive": (25785, 71142, 41973, 14135, 37199, 22358, 31.41, 184.39, 79.04, 1.0),
+        "viewdep": (5223, 39139, 21501, 3142, 20770, 11670, 5.52, 83.29, 33.02, 2.39),
+    },
+    "solo_dancer": {
+        "nonadaptive": (43710, 43710, 43710, 22736, 22736, 22736, 27.31, 58.09, 29.27, 0.54),
+        "adaptive": (12030, 21763, 18041, 6593, 11535, 9659, 7.78, 22.00, 15.80, 1.0),
+        "viewdep": (730, 15951, 9638, 560, 8599, 5314, 0.83, 13.81, 7.55, 2.09),
+    },
+    "multiple_dancers": {
+        "nonadaptive": (437100, 437100, 437100, 227360, 227360, 227360, 273.13, 580.85, 292.73, 0.47),
+        "adaptive": (119515, 184340, 161028, 65505, 98630, 86897, 79.97, 178.24, 136.99, 1.0),
+        "viewdep": (11216, 102945, 36339, 7619, 56285, 21228, 12.02, 82.54, 30.76, 4.45),
+    },
+}
+PAPER_COLUMNS = ("faces_min", "faces_max", "faces_mean", "verts_min", "verts_max", "verts_mean", "time_min_s",
+                 "time_max_s", "time_mean_s", "speedup")
+PAPER_SOURCE = "Koh, Narain, O'Brien 2015, Table 1"
+
+
+class AggregateError(ValueError):
+    """Bad input to the aggregation (a root that does not exist ...); the message names it."""
+
+
+class RunFolderWarning(UserWarning):
+    """A run folder that is reported and skipped (or kept without its accuracy)."""
+
+
+@dataclass(frozen=True)
+class Problem:
+    """A run folder that could not be used (or only in part), and why."""
+    path: Path
+    reason: str
+
+    def __str__(self) -> str:
+        return f"{self.path}: {self.reason}"
+
+
+@dataclass
+class RunSet:
+    """What load_runs found: one row per usable run, their frames, and the folders it skipped.
+
+    runs:      one row per run (see :func:`load_run` for the columns), ordered by path.
+    frames:    every frame of every run: the run's ``run``, scene, mode, scale, study, variant, then
+               the frames.parquet columns.
+    accuracy:  every frame of accuracy.parquet of the runs that have one (``run`` + its columns).
+    problems:  the folders skipped (or kept without accuracy), each with its reason.
+    """
+    runs: pd.DataFrame
+    frames: pd.DataFrame
+    accuracy: pd.DataFrame
+    problems: list[Problem] = field(default_factory=list)
+
+
+class _Bad(Exception):
+    """Internal: a run folder that cannot be used; the message is the reason."""
+
+
+# ---- finding and loading run folders -----------------------------------------------------------
+
+def check_roots(roots) -> list[Path]:
+    """The roots as Paths; AggregateError naming the first that is not a directory."""
+    out = []
+    for r in roots:
+        p = Path(r)
+        if not p.is_dir():
+            raise AggregateError(f"root {str(r)!r} is not a directory" if p.exists() else
+                                 f"root {str(r)!r} does not exist")
+        out.append(p)
+    if not out:
+        raise AggregateError("no root given (the folders to search for run folders)")
+    return out
+
+
+def is_run_folder(path: Path) -> bool:
+    """A run folder holds config.yaml, or both frames.parquet and summary.json."""
+    return (path / "config.yaml").is_file() or ((path / "frames.parquet").is_file()
+                                                 and (path / "summary.json").is_file())
+
+
+def find_run_folders(roots) -> list[Path]:
+    """Every run folder under the roots (a root may be a run folder), sorted, without duplicates.
+    Hidden directories are skipped and the search stops at a run folder (crowd characters and
+    states/ sub-folders belong to their run)."""
+    found: set[Path] = set()
+    for root in check_roots(roots):
+        for dirpath, dirnames, _ in os.walk(root):
+            here = Path(dirpath)
+            if is_run_folder(here):
+                found.add(here.resolve())
+                dirnames[:] = []
+                continue
+            dirnames[:] = sorted(d for d in dirnames if not d.startswith("."))
+    return sorted(found)
+
+
+def _get(cfg: dict, dotted: str, default=None):
+    node = cfg
+    for key in dotted.split("."):
+        if not isinstance(node, dict) or key not in node:
+            return default
+        node = node[key]
+    return node
+
+
+def _read_yaml(path: Path) -> dict:
+    if not path.is_file():
+        raise _Bad(f"no {path.name} (half-written run folder?)")
+    try:
+        cfg = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise _Bad(f"{path.name} unreadable: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
+    if not isinstance(cfg, dict):
+        raise _Bad(f"{path.name} is not a mapping")
+    return cfg
+
+
+def _read_json(path: Path, what: str) -> dict:
+    if not path.is_file():
+        raise _Bad(f"no {path.name} ({what})")
+    try:
+        obj = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise _Bad(f"{path.name} unreadable: {type(exc).__name__}: {exc}")
+    if not isinstance(obj, dict):
+        raise _Bad(f"{path.name} is not a JSON object")
+    return obj
+
+
+def _read_parquet(path: Path) -> pd.DataFrame:
+    if not path.is_file():
+        raise _Bad(f"no {path.name} (the run wrote no frame?)")
+    try:
+        return pd.read_parquet(path)
+    except Exception as exc:  # noqa: BLE001 - pyarrow raises several kinds for a broken file
+        raise _Bad(f"{path.name} unreadable: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
+
+
+def _timestamp(path: Path) -> str:
+    """When the run started: the manifest's timestamp_utc, else the config's modification time."""
+    try:
+        ts = json.loads((path / "manifest.json").read_text()).get("timestamp_utc")
+        if ts:
+            return str(pd.Timestamp(ts).tz_convert("UTC").isoformat())
+    except (OSError, ValueError, TypeError, AttributeError):
+        pass
+    f = path / "config.yaml"
+    t = f.stat().st_mtime if f.exists() else path.stat().st_mtime
+    return pd.Timestamp(t, unit="s", tz="UTC").isoformat()
+
+
+def _camera_cuts(cfg: dict) -> tuple:
+    """Times (s) of the camera's jump cuts: the start of every shot after the first."""
+    cam = cfg.get("camera") or {}
+    if not isinstance(cam, dict) or cam.get("type") != "cuts":
+        return ()
+    shots = cam.get("shots") or []
+    return tuple(float(s["start"]) for s in shots[1:] if isinstance(s, dict) and "start" in s)
+
+
+def _text(v) -> str:
+    return "" if v is None else str(v)
+
+
+def _float(v) -> float:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
+    """One run folder: (row of the runs table, frames, accuracy frames or None, notes about parts
+    left out). Raises _Bad with the reason when the folder cannot be used.
+
+    Row: path, scene, mode, scale, study, variant, reference, seed, timestamp, the swept
+    parameters (nu_out, margin, T, anticipation, buckling_k, buckling_mode; NaN/'' where the mode
+    has none), frame_time_s, camera_cuts_s, status, frames, frames_requested, characters,
+    faces/verts/time min/max/mean (time_*_s from wall_s), time_total_s, time_<phase>_mean_s,
+    and accuracy.json's ACCURACY_KEYS plus accuracy_frames (NaN without accuracy).
+    """
+    path = Path(path)
+    cfg = _read_yaml(path / "config.yaml")
+    scene, mode = _get(cfg, "scene.name"), _get(cfg, "mode.name")
+    if not scene or not mode:
+        raise _Bad("config.yaml has no scene.name or mode.name (not a resolved run config?)")
+    summary = _read_json(path / "summary.json", "half-written: the run did not finish, or is still running")
+    status = summary.get("status")
+    if status != "completed":
+        msg = summary.get("message") or ""
+        raise _Bad(f"status {status!r}, not 'completed'" + (f" ({msg})" if msg else ""))
+    frames = _read_parquet(path / "frames.parquet")
+    missing = [c for c in REQUIRED_FRAME_COLUMNS if c not in frames.columns]
+    if missing:
+        raise _Bad(f"frames.parquet lacks column(s) {', '.join(missing)}")
+    nan = [c for c in REQUIRED_FRAME_COLUMNS if frames[c].isna().any()]
+    if nan:
+        raise _Bad(f"frames.parquet has NaN in {', '.join(nan)}")
+    requested = [int(v) for v in (cfg.get("frames"), summary.get("frames_requested")) if isinstance(v, (int, float))]
+    if requested and len(frames) < max(requested):
+        raise _Bad(f"{len(frames)} frames of {max(requested)} requested")
+    if "frames_completed" in summary and int(summary["frames_completed"]) != len(frames):
+        raise _Bad(f"summary.json says {summary['frames_completed']} frames, frames.parquet has {len(frames)}")
+    frames = frames.sort_values("frame").reset_index(drop=True)
+
+    buckling = _get(cfg, "mode.buckling")
+    row = {"path": str(path), "scene": str(scene), "mode": str(mode), "scale": _text(cfg.get("scale")),
+           "study": _text(cfg.get("study")), "variant": _text(cfg.get("variant")),
+           "reference": bool(cfg.get("reference") or False), "seed": cfg.get("seed"), "timestamp": _timestamp(path)}
+    for col, key in SWEPT.items():
+        v = _get(cfg, key)
+        row[col] = (math.nan if v is None else bool(v)) if col == "anticipation" else _float(v)
+    row["anticipation"] = row["anticipation"] if mode == "viewdep" else math.nan
+    row["buckling_k"] = _float(buckling.get("k")) if isinstance(buckling, dict) else math.nan
+    row["buckling_mode"] = (str(buckling.get("mode", "adaptive")) if isinstance(buckling, dict) else "none")
+    row["frame_time_s"] = _float(_get(cfg, "scene.params.frame_time"))
+    row["camera_cuts_s"] = _camera_cuts(cfg)
+    row.update(status=status, frames=int(len(frames)), frames_requested=max(requested) if requested else len(frames),
+               characters=int(summary.get("characters", 1)))
+    for col, name in STAT_COLUMNS.items():
+        unit = "_s" if name == "time" else ""
+        row[f"{name}_min{unit}"] = float(frames[col].min())
+        row[f"{name}_max{unit}"] = float(frames[col].max())
+        row[f"{name}_mean{unit}"] = float(frames[col].mean())
+    row["time_total_s"] = float(frames["wall_s"].sum())
+    for c in frames.columns:
+        if c.startswith("time_") and c.endswith("_s"):
+            row[f"{c[:-2]}_mean_s"] = float(frames[c].mean())
+
+    notes: list[str] = []
+    acc_frames = None
+    for k in ACCURACY_KEYS:
+        row[k] = math.nan
+    row["accuracy_frames"] = math.nan
+    if (path / "accuracy.json").exists():
+        try:
+            acc = _read_json(path / "accuracy.json", "accuracy")
+            for k in ACCURACY_KEYS:
+                row[k] = _float(acc.get(k))
+            row["accuracy_frames"] = _float(acc.get("frames"))
+        except _Bad as exc:
+            notes.append(f"{exc}; the run is kept without accuracy")
+    if (path / "accuracy.parquet").exists():
+        try:
+            acc_frames = _read_parquet(path / "accuracy.parquet")
+            if "frame" not in acc_frames.columns:
+                raise _Bad("accuracy.parquet has no frame column")
+        except _Bad as exc:
+            acc_frames = None
+            notes.append(f"{exc}; the run is kept without per-frame accuracy")
+    return row, frames, acc_frames, notes
+
+
+def _run_ids(paths: list[Path]) -> list[str]:
+    """Short names: each path relative to the common parent of all (the folder name when alone)."""
+    if not paths:
+        return []
+    if len(paths) == 1:
+        return [paths[0].name]
+    base = Path(os.path.commonpath([str(p.parent) for p in paths]))
+    return [str(p.relative_to(base)) for p in paths]
+
+
+def load_runs(roots, warn: bool = True) -> RunSet:
+    """Load every run folder under the roots; unusable ones go to ``problems`` (and, with `warn`,
+    a RunFolderWarning each), never into the tables."""
+    paths = find_run_folders(roots)
+    rows, frames, accs, problems, kept = [], [], [], [], []
+    for p in paths:
+        try:
+            row, fr, acc, notes = load_run(p)
+        except _Bad as exc:
+            problems.append(Problem(p, f"skipped: {exc}"))
+            continue
+        problems.extend(Problem(p, n) for n in notes)
+        kept.append(p)
+        rows.append(row)
+        frames.append(fr)
+        accs.append(acc)
+    ids = _run_ids(kept)
+    runs = pd.DataFrame(rows)
+    if len(runs):
+        runs.insert(0, "run", ids)
+    else:
+        runs = pd.DataFrame(columns=["run", "path", "scene", "mode", "scale", "study", "variant", "reference"])
+    key = ("scene", "mode", "scale", "study", "variant")
+    per_frame = [f.assign(run=rid, **{k: r[k] for k in key}) for rid, r, f in zip(ids, rows, frames)]
+    frames_all = pd.concat(per_frame, ignore_index=True) if per_frame else pd.DataFrame(columns=["run", *key])
+    frames_all = frames_all[["run", *key] + [c for c in frames_all.columns if c not in ("run", *key)]]
+    acc_all = [a.assign(run=rid) for rid, a in zip(ids, accs) if a is not None]
+    acc_all = pd.concat(acc_all, ignore_index=True) if acc_all else pd.DataFrame(columns=["run", "frame"])
+    acc_all = acc_all[["run"] + [c for c in acc_all.columns if c != "run"]]
+    if warn:
+        for pr in problems:
+            warnings.warn(str(pr), RunFolderWarning, stacklevel=2)
+    return RunSet(runs=runs, frames=frames_all, accuracy=acc_all, problems=problems)
+
+
+# ---- selecting runs ------------------------------------------------------------------------------
+
+def latest(runs: pd.DataFrame, keys) -> tuple[pd.DataFrame, list[str]]:
+    """The latest run (timestamp, then path) of each group of `keys`; and a note per run left out."""
+    if runs.empty:
+        return runs, []
+    ordered = runs.sort_values(["timestamp", "path"])
+    keep = ordered.groupby(list(keys), dropna=False, sort=False).tail(1)
+    dropped = ordered.drop(keep.index)
+    notes = [f"{r.run}: superseded by a later run of the same {'/'.join(keys)}" for r in dropped.itertuples()]
+    return keep.sort_index(), notes
+
+
+def is_default_variant(row) -> bool:
+    """A run that stands for its mode with default settings (variant empty or the mode's name)."""
+    return row["variant"] in ("", row["mode"])
+
+
+def table1_runs(runs: pd.DataFrame) -> pd.DataFrame:
+    """The runs Table 1 is made of: the table1 study's when there are any, else all; never the
+    fine reference runs."""
+    if runs.empty:
+        return runs
+    runs = runs[~runs["reference"].astype(bool)]
+    study = runs[runs["study"] == "table1"]
+    return study if len(study) else runs
+
+
+def baseline_for(runs: pd.DataFrame, scene: str, scale: str) -> pd.Series | None:
+    """The adaptive run of a scene and scale that speed-ups are measured against: the only one,
+    else the latest of the default variant; None when there is none or it is ambiguous."""
+    cand = runs[(runs["scene"] == scene) & (runs["scale"] == scale) & (runs["mode"] == "adaptive")
+                & ~runs["reference"].astype(bool)]
+    if len(cand) > 1:
+        cand = cand[cand.apply(is_default_variant, axis=1)]
+        cand, _ = latest(cand, ("scene",))
+    return cand.iloc[0] if len(cand) == 1 else None
+
+
+def _order(df: pd.DataFrame) -> pd.DataFrame:
+    scene_rank = {s: i for i, s in enumerate(PAPER_SCENES)}
+    mode_rank = {m: i for i, m in enumerate(MODES)}
+    return (df.assign(_s=df["scene"].map(lambda s: (scene_rank.get(s, len(scene_rank)), s)),
+                      _m=df["mode"].map(lambda m: mode_rank.get(m, len(mode_rank))))
+            .sort_values(["_s", "scale", "_m", "variant"]).drop(columns=["_s", "_m"]).reset_index(drop=True))
+
+
+# ---- Table 1 -------------------------------------------------------------------------------------
+
+def table1(runs: pd.DataFrame) -> pd.DataFrame:
+    """The paper's Table 1 of any set of runs (columns TABLE1_COLUMNS; see the module docstring for
+    duplicates and the speed-up). Notes (superseded runs, missing baselines) are in
+    ``.attrs['notes']``."""
+    runs = runs[~runs["reference"].astype(bool)] if len(runs) else runs
+    if runs.empty:
+        out = pd.DataFrame(columns=list(TABLE1_COLUMNS))
+        out.attrs["notes"] = []
+        return out
+    chosen, notes = latest(runs, ("scene", "scale", "mode", "variant"))
+    rows = []
+    for r in chosen.itertuples():
+        base = baseline_for(chosen, r.scene, r.scale)
+        if base is None:
+            notes.append(f"{r.run}: no unique adaptive run of {r.scene} ({r.scale or 'no scale'}): speed-up left out")
+        rows.append({"scene": r.scene, "scale": r.scale, "mode": r.mode, "variant": r.variant, "frames": r.frames,
+                     **{c: getattr(r, c) for c in TABLE1_COLUMNS[5:14]},
+                     "speedup": (base["time_mean_s"] / r.time_mean_s) if base is not None else math.nan,
+                     "baseline": base["run"] if base is not None else "", "run": r.run})
+    out = _order(pd.DataFrame(rows, columns=list(TABLE1_COLUMNS)))
+    out.attrs["notes"] = sorted(set(notes))
+    return out
+
+
+def paper_table1() -> pd.DataFrame:
+    """The paper's Table 1 as printed (PAPER_TABLE1), one row per scene and mode."""
+    rows = [{"scene": s, "paper_scene": PAPER_SCENES[s], "mode": m, **dict(zip(PAPER_COLUMNS, v))}
+            for s, modes in PAPER_TABLE1.items() for m, v in modes.items()]
+    return pd.DataFrame(rows)
+
+
+def _int(v) -> str:
+    return "" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{int(round(v)):,}"
+
+
+def _sec(v, digits: int) -> str:
+    return "" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.{digits}f}"
+
+
+def _x(v) -> str:
+    return "" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.2f}×"
+
+
+def _time_digits(t: pd.DataFrame) -> int:
+    """Decimals for times: the paper's 2, more when our times are short (small scale)."""
+    m = t["time_min_s"].min() if len(t) else 1.0
+    return 2 if m >= 1 else 3 if m >= 0.01 else 4
+
+
+def _md_table(header: list[str], rows: list[list[str]], align: str) -> str:
+    lines = ["| " + " | ".join(header) + " |", "| " + " | ".join("---:" if a == "r" else "---" for a in align) + " |"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def _ours_cells(t: pd.DataFrame) -> tuple[list[str], list[list[str]], str]:
+    d = _time_digits(t)
+    header = ["scene", "scale", "mode", "variant", "frames", "faces min", "faces max", "faces mean", "verts min",
+              "verts max", "verts mean", "s/frame min", "s/frame max", "s/frame mean", "speed-up"]
+    rows = [[r.scene, r.scale, MODE_LABELS.get(r.mode, r.mode), r.variant if r.variant != r.mode else "",
+             str(r.frames), _int(r.faces_min), _int(r.faces_max), _int(r.faces_mean), _int(r.verts_min),
+             _int(r.verts_max), _int(r.verts_mean), _sec(r.time_min_s, d), _sec(r.time_max_s, d),
+             _sec(r.time_mean_s, d), _x(r.speedup)] for r in t.itertuples()]
+    return header, rows, "llllrrrrrrrrrrr"
+
+
+def _paper_cells(p: pd.DataFrame) -> tuple[list[str], list[list[str]], str]:
+    header = ["scene", "mode", "faces min", "faces max", "faces mean", "verts min", "verts max", "verts mean",
+              "s/frame min", "s/frame max", "s/frame mean", "speed-up"]
+    rows = [[r.paper_scene, MODE_LABELS[r.mode], _int(r.faces_min), _int(r.faces_max), _int(r.faces_mean),
+             _int(r.verts_min), _int(r.verts_max), _int(r.verts_mean), _sec(r.time_min_s, 2), _sec(r.time_max_s, 2),
+             _sec(r.time_mean_s, 2), _x(r.speedup)] for r in p.itertuples()]
+    return header, rows, "llrrrrrrrrrr"
+
+
+def side_by_side(ours: pd.DataFrame, paper: pd.DataFrame | None = None) -> pd.DataFrame:
+    """Our rows of the paper's scenes (default variants) paired with the paper's row of the same
+    scene and mode: faces mean, time per frame mean and speed-up, ours and the paper's."""
+    paper = paper_table1() if paper is None else paper
+    mine = ours[ours["scene"].isin(list(PAPER_SCENES)) & ((ours["variant"] == "") | (ours["variant"] == ours["mode"]))]
+    merged = mine.merge(paper, on=["scene", "mode"], how="inner", suffixes=("", "_paper"))
+    return merged[["scene", "scale", "mode", "faces_mean", "faces_mean_paper", "time_mean_s", "time_mean_s_paper",
+                   "speedup", "speedup_paper"]]
+
+
+def table1_markdown(ours: pd.DataFrame, paper: pd.DataFrame | None = None) -> str:
+    """Our Table 1, the paper's beside it, and the two side by side where scenes match."""
+    paper = paper_table1() if paper is None else paper
+    out = ["## Table 1: this project", ""]
+    if len(ours):
+        out.append(_md_table(*_ours_cells(ours)))
+    else:
+        out.append("(no runs)")
+    out += ["", "Time per frame in seconds (wall clock, every phase); speed-up = mean time per frame of the "
+            "adaptive run of the same scene and scale / this row's.", ""]
+    for n in ours.attrs.get("notes", []):
+        out.append(f"- note: {n}")
+    out += ["", f"## Table 1: the paper ({PAPER_SOURCE}; 4 threads of a Xeon E5-2680 v2)", "",
+            _md_table(*_paper_cells(paper)), ""]
+    sbs = side_by_side(ours, paper)
+    if len(sbs):
+        d = _time_digits(ours)
+        rows = [[r.scene, r.scale, MODE_LABELS.get(r.mode, r.mode), _int(r.faces_mean), _int(r.faces_mean_paper),
+                 _sec(r.time_mean_s, d), _sec(r.time_mean_s_paper, 2), _x(r.speedup), _x(r.speedup_paper)]
+                for r in sbs.itertuples()]
+        out += ["## Side by side (means)", "", _md_table(
+            ["scene", "scale", "mode", "faces (ours)", "faces (paper)", "s/frame (ours)", "s/frame (paper)",
+             "speed-up (ours)", "speed-up (paper)"], rows, "lllrrrrrr"), ""]
+    return "\n".join(out) + "\n"
+
+
+_TEX = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_", "{": r"\{",
+        "}": r"\}", "×": r"$\times$", ",": "{,}"}
+
+
+def _tex_escape(s: str) -> str:
+    """LaTeX-safe text (a thousands comma as {,} so that it is not followed by a space)."""
+    return "".join(_TEX.get(c, c) for c in s)
+
+
+def _tex_table(header, rows, align, caption: str) -> str:
+    lines = [r"\begin{table}[t]", r"\centering", rf"\caption{{{_tex_escape(caption).replace('{,}', ',')}}}",
+             rf"\begin{{tabular}}{{{align}}}", r"\toprule", " & ".join(_tex_escape(h) for h in header) + r" \\",
+             r"\midrule"]
+    lines += [" & ".join(_tex_escape(c) for c in r) + r" \\" for r in rows]
+    lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}"]
+    return "\n".join(lines)
+
+
+def table1_latex(ours: pd.DataFrame, paper: pd.DataFrame | None = None) -> str:
+    """Two booktabs tables: ours and the paper's."""
+    paper = paper_table1() if paper is None else paper
+    parts = ["% Table 1 of this project and of the paper (needs \\usepackage{booktabs})"]
+    if len(ours):
+        parts.append(_tex_table(*_ours_cells(ours), "Table 1, this project: faces, vertices and time per frame "
+                                "(s); speed-up against adaptive on the same scene."))
+    parts.append(_tex_table(*_paper_cells(paper), f"Table 1 of the paper ({PAPER_SOURCE})."))
+    return "\n\n".join(parts) + "\n"
+
+
+def write_table1(ours: pd.DataFrame, out_dir, stem: str = "table1") -> list[Path]:
+    """table1.csv (ours), table1_paper.csv, table1.md and table1.tex (both tables), atomically."""
+    out_dir = Path(out_dir)
+    paper = paper_table1()
+    files = [out_dir / f"{stem}.csv", out_dir / f"{stem}_paper.csv", out_dir / f"{stem}.md", out_dir / f"{stem}.tex"]
+    write_text_atomic(files[0], ours.to_csv(index=False))
+    write_text_atomic(files[1], paper.assign(source=PAPER_SOURCE).to_csv(index=False))
+    write_text_atomic(files[2], table1_markdown(ours, paper))
+    write_text_atomic(files[3], table1_latex(ours, paper))
+    return files
+
+
+def write_runs(runset: RunSet, out_dir) -> list[Path]:
+    """runs.csv, frames.parquet (every frame of every run), accuracy_frames.parquet (when any),
+    problems.txt, atomically."""
+    out_dir = Path(out_dir)
+    files = [out_dir / "runs.csv", out_dir / "frames.parquet", out_dir / "problems.txt"]
+    write_text_atomic(files[0], runset.runs.to_csv(index=False))
+    write_parquet_atomic(files[1], runset.frames)
+    write_text_atomic(files[2], "".join(f"{p}\n" for p in runset.problems))
+    if len(runset.accuracy):
+        files.append(out_dir / "accuracy_frames.parquet")
+        write_parquet_atomic(files[-1], runset.accuracy)
+    return files
+
+
+# ---- command line ----------------------------------------------------------------------------------
+
+def report_problems(problems, stream=None) -> None:
+    stream = stream or sys.stderr
+    for p in problems:
+        print(f"warning: {p}", file=stream)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m experiments.aggregate",
+                                 description="Tables of run folders (never re-simulating): runs, frames, Table 1.")
+    ap.add_argument("roots", nargs="+", type=Path, help="folders searched for run folders")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="write runs.csv, frames.parquet, table1.{csv,md,tex}, table1_paper.csv, problems.txt here "
+                         "(default: print Table 1 only)")
+    args = ap.parse_args(argv)
+    try:
+        check_roots(args.roots)
+    except AggregateError as exc:
+        print(f"aggregate: {exc}", file=sys.stderr)
+        return 2
+    runset = load_runs(args.roots, warn=False)
+    report_problems(runset.problems)
+    print(f"{len(runset.runs)} run(s) loaded, {sum(p.reason.startswith('skipped') for p in runset.problems)} "
+          f"folder(s) skipped")
+    if runset.runs.empty:
+        print("aggregate: no usable run folder under " + ", ".join(map(str, args.roots)), file=sys.stderr)
+        return 1
+    t1 = table1(table1_runs(runset.runs))
+    print(table1_markdown(t1))
+    if args.out is not None:
+        files = write_runs(runset, args.out) + write_table1(t1, args.out)
+        for f in files:
+            print(f"wrote {f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,93 @@
+"""The main job: reproduce the paper's Table 1, its Fig. 8 and the accuracy/time Pareto figure.
+
+    python -m experiments.paper [--scale small|paper] [--jobs 2] [--out results/paper/<timestamp>]
+                                [--studies table1 accuracy ...] [--frames N]
+
+Runs each study as a Hydra multirun (``python -m experiments.run -m +experiment=<study>``, joblib
+launcher, ``--jobs`` runs at a time) into ``<out>/<study>/``; every study's multirun ends with the
+study callback (experiments.callbacks), which measures each run's screen-space error against the
+study's fine nonadaptive reference run when it has one. Then ``python -m paper_figures`` makes every
+table and figure from the run folders into ``<out>/figures/``, and the paths are printed.
+
+A study that fails (a run that diverges, a killed process) does not stop the others: its run
+folders stay as written, the aggregation reports the broken ones by name and skips them, and the
+job exits non-zero at the end. At scale=small the default studies (table1, accuracy) take about
+20-30 minutes on 2 cores; at scale=paper expect a day (see README: running at paper scale).
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import time
+from datetime import datetime
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+STUDIES = ("table1", "sweep_nu_out", "sweep_k", "sweep_T", "sweep_margin", "ablation_buckling",
+           "ablation_anticipation", "accuracy")
+DEFAULT_STUDIES = ("table1", "accuracy")
+
+
+def study_command(study: str, out: Path, scale: str, jobs: int, frames: int | None, extra=()) -> list[str]:
+    """The Hydra multirun command of one study."""
+    cmd = [sys.executable, "-m", "experiments.run", "-m", f"+experiment={study}", f"scale={scale}",
+           f"hydra.sweep.dir={out / study}", f"hydra.launcher.n_jobs={jobs}"]
+    if frames is not None:
+        cmd.append(f"frames={frames}")
+    return cmd + list(extra)
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(prog="python -m experiments.paper", description=__doc__.split("\n")[0])
+    ap.add_argument("--scale", default="small", choices=("small", "paper"))
+    ap.add_argument("--jobs", type=int, default=2, help="runs in parallel (local processes)")
+    ap.add_argument("--out", type=Path, default=None, help="default results/paper/<timestamp>")
+    ap.add_argument("--studies", nargs="+", default=list(DEFAULT_STUDIES), metavar="STUDY",
+                    help=f"any of {', '.join(STUDIES)} (default: {' '.join(DEFAULT_STUDIES)})")
+    ap.add_argument("--frames", type=int, default=None, help="frames per run (default: each scene's own)")
+    ap.add_argument("overrides", nargs="*", help="extra Hydra overrides for every run (e.g. crowd_jobs=1)")
+    args = ap.parse_args(argv)
+    bad = [s for s in args.studies if s not in STUDIES]
+    if bad:
+        ap.error(f"unknown study {bad[0]!r}; known: {', '.join(STUDIES)}")
+    if args.jobs < 1:
+        ap.error(f"--jobs must be >= 1, got {args.jobs}")
+    if args.frames is not None and args.frames < 1:
+        ap.error(f"--frames must be >= 1, got {args.frames}")
+    return args
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    out = (args.out or ROOT / "results" / "paper" / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    failed = []
+    t_start = time.perf_counter()
+    for i, study in enumerate(args.studies, 1):
+        print(f"[{i}/{len(args.studies)}] study {study} at scale={args.scale} -> {out / study}", flush=True)
+        t0 = time.perf_counter()
+        rc = subprocess.call(study_command(study, out, args.scale, args.jobs, args.frames, args.overrides), cwd=ROOT)
+        print(f"[{i}/{len(args.studies)}] study {study}: {'done' if rc == 0 else f'FAILED (exit {rc})'} "
+              f"in {(time.perf_counter() - t0) / 60:.1f} min", flush=True)
+        if rc != 0:
+            failed.append(study)
+    figures = out / "figures"
+    print(f"figures and tables from {out} -> {figures}", flush=True)
+    rc = subprocess.call([sys.executable, "-m", "paper_figures", str(out), "--out", str(figures)], cwd=ROOT)
+    if rc != 0:
+        failed.append("paper_figures")
+    print(f"\nall done in {(time.perf_counter() - t_start) / 60:.1f} min")
+    print(f"  run folders: {out}")
+    print(f"  Table 1:     {figures / 'table1.md'} (.csv, .tex)")
+    print(f"  Fig. 8:      {figures}/fig8_*.png")
+    print(f"  Pareto:      {figures / 'pareto.png'} ({figures / 'pareto.md'})")
+    if failed:
+        print(f"  FAILED: {', '.join(failed)} (the records above say which runs)", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,178 @@
+"""Ablation figures: buckling compensation (the paper's Fig. 6) and temporal anticipation of
+camera cuts (the paper's Fig. 3).
+
+    python -m paper_figures.ablations ROOT [ROOT ...] [--out DIR]
+
+Buckling: viewdep runs that differ only in their compensation (none; uniform: compression removed
+on every out-of-frustum face; adaptive with its k), the ablation_buckling study's when present:
+faces, ballooning of out-of-view cloth (offscreen_distance_m of accuracy.json, metres) and time
+per frame per variant, and ballooning over time when accuracy.parquet is there.
+-> ablation_buckling.png/.pdf, ablation_buckling.csv/.md.
+
+Anticipation: viewdep runs that differ only in mode.view.anticipation (the ablation_anticipation
+study's when present): faces, faces in view and screen-space error over time with the camera
+cuts marked, and per variant the mean error over the CUT_WINDOW_FRAMES frames from each cut.
+-> ablation_anticipation.png/.pdf, ablation_anticipation.csv/.md.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+
+from .common import RunSet, Skip, frame_times, one_factor, save_figure, script_main, study_or_all, write_table
+
+CUT_WINDOW_FRAMES = 10  # frames from a cut over which 'error after the cut' is averaged (T = 5 frames, twice)
+BUCKLING_OTHERS = ("nu_out", "margin", "T", "anticipation")
+ANTICIPATION_OTHERS = ("nu_out", "margin", "T", "buckling_k", "buckling_mode")
+BUCKLING_ORDER = ("none", "uniform", "adaptive")
+BUCKLING_COLORS = {"none": "tab:red", "uniform": "tab:gray", "adaptive": "tab:green"}
+
+
+def buckling_label(row) -> str:
+    if row["buckling_mode"] == "adaptive":
+        return f"adaptive k={row['buckling_k']:g}"
+    return str(row["buckling_mode"])
+
+
+def _per_frame(runset: RunSet, run: str, column: str):
+    """(simulated time, values) of a frames.parquet or accuracy.parquet column of a run, or None."""
+    fr = runset.frames[runset.frames["run"] == run]
+    if column in fr.columns:
+        return fr, fr[column].to_numpy(float)
+    acc = runset.accuracy[runset.accuracy["run"] == run] if len(runset.accuracy) else runset.accuracy
+    if len(acc) and column in acc.columns:
+        merged = acc.merge(fr[["frame"] + (["sim_time_s"] if "sim_time_s" in fr.columns else [])], on="frame",
+                           how="left")
+        return merged, merged[column].to_numpy(float)
+    return None
+
+
+def _plot_over_time(ax, runset, runs: pd.DataFrame, column: str, labels, ylabel: str, colors=None) -> bool:
+    drawn = False
+    colors = list(colors) if colors is not None else [None] * len(runs)
+    for (_, r), label, c in zip(runs.iterrows(), labels, colors):
+        got = _per_frame(runset, r["run"], column)
+        if got is None:
+            continue
+        fr, values = got
+        ax.plot(frame_times(fr, r["frame_time_s"]), values, lw=1.0, label=label, color=c)
+        drawn = True
+    ax.set_ylabel(ylabel)
+    ax.grid(alpha=0.3)
+    if drawn:
+        ax.legend(fontsize=8)
+    else:
+        ax.text(0.5, 0.5, "not recorded", transform=ax.transAxes, ha="center", va="center", color="0.4")
+    return drawn
+
+
+def buckling(runset: RunSet, out) -> list[Path]:
+    runs = study_or_all(runset.runs, "ablation_buckling")
+    vd = runs[runs["mode"] == "viewdep"] if len(runs) else runs
+    if vd.empty:
+        raise Skip("buckling: no viewdep runs")
+    vd = vd.assign(compensation=vd.apply(buckling_label, axis=1))
+    pts = pd.concat([one_factor(g, "compensation", BUCKLING_OTHERS) for _, g in vd.groupby(["scene", "scale"])])
+    if pts.empty:
+        raise Skip("buckling: no viewdep runs that differ only in their buckling compensation")
+    pts = pts.assign(_o=pts["buckling_mode"].map(lambda m: BUCKLING_ORDER.index(m) if m in BUCKLING_ORDER else 9))
+    pts = pts.sort_values(["scene", "scale", "_o", "buckling_k"]).drop(columns="_o")
+    table = pts[["scene", "scale", "compensation", "run", "faces_mean", "offscreen_distance_m_mean", "time_mean_s",
+                 "error_px_mean"]].reset_index(drop=True)
+    fig, axes = plt.subplots(1, 4, figsize=(16, 3.6))
+    names = [f"{r.compensation}\n{r.scene}" if table["scene"].nunique() > 1 else r.compensation
+             for r in table.itertuples()]
+    x = np.arange(len(table))
+    for ax, col, ylabel in zip(axes[:3], ("faces_mean", "offscreen_distance_m_mean", "time_mean_s"),
+                               ("faces, mean", "out-of-view ballooning, mean (m)", "time per frame, mean (s)")):
+        ax.bar(x, table[col].to_numpy(float), color=[BUCKLING_COLORS.get(m, "tab:olive") for m in pts["buckling_mode"]])
+        ax.set_xticks(x, names, fontsize=8)
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3, axis="y")
+        if not table[col].notna().any():
+            ax.text(0.5, 0.5, "not measured", transform=ax.transAxes, ha="center", va="center", color="0.4")
+    _plot_over_time(axes[3], runset, pts, "offscreen_distance_m", list(table["compensation"]),
+                    "out-of-view ballooning (m)", colors=[BUCKLING_COLORS.get(m) for m in pts["buckling_mode"]])
+    axes[3].set_xlabel("simulated time (s)")
+    fig.suptitle("Buckling compensation (the paper's Fig. 6): none / uniform / area-adaptive")
+    fig.tight_layout()
+    return save_figure(fig, out, "ablation_buckling") + write_table(
+        table, out, "ablation_buckling", "Buckling compensation ablation (the paper's Fig. 6)")
+
+
+def _after_cut(runset: RunSet, r, cuts) -> float:
+    """Mean error_px over the CUT_WINDOW_FRAMES frames from each cut (NaN without accuracy)."""
+    got = _per_frame(runset, r["run"], "error_px")
+    if got is None or not cuts:
+        return np.nan
+    fr, err = got
+    t = frame_times(fr, r["frame_time_s"])
+    dt = r["frame_time_s"] if np.isfinite(r["frame_time_s"]) else 1.0
+    mask = np.zeros(len(t), bool)
+    for c in cuts:
+        mask |= (t >= c - 1e-9) & (t < c + CUT_WINDOW_FRAMES * dt - 1e-9)
+    vals = err[mask]
+    vals = vals[np.isfinite(vals)]
+    return float(vals.mean()) if len(vals) else np.nan
+
+
+def anticipation(runset: RunSet, out) -> list[Path]:
+    runs = study_or_all(runset.runs, "ablation_anticipation")
+    vd = runs[(runs["mode"] == "viewdep") & runs["anticipation"].notna()] if len(runs) else runs
+    if vd.empty:
+        raise Skip("anticipation: no viewdep runs")
+    pts = pd.concat([one_factor(g, "anticipation", ANTICIPATION_OTHERS) for _, g in vd.groupby(["scene", "scale"])])
+    if pts.empty:
+        raise Skip("anticipation: no viewdep runs that differ only in mode.view.anticipation")
+    pts = pts.sort_values(["scene", "scale", "anticipation"], ascending=[True, True, False])
+    labels = [("with" if bool(r.anticipation) else "without") + " anticipation"
+              + (f" ({r.scene})" if pts["scene"].nunique() > 1 else "") for r in pts.itertuples()]
+    cuts = sorted({c for cs in pts["camera_cuts_s"] for c in cs})
+    table = pd.DataFrame({"scene": pts["scene"].to_numpy(), "scale": pts["scale"].to_numpy(),
+                          "anticipation": pts["anticipation"].astype(bool).to_numpy(), "run": pts["run"].to_numpy(),
+                          "faces_mean": pts["faces_mean"].to_numpy(), "time_mean_s": pts["time_mean_s"].to_numpy(),
+                          "error_px_mean": pts["error_px_mean"].to_numpy(),
+                          "error_px_after_cut_mean": [_after_cut(runset, r, r["camera_cuts_s"])
+                                                      for _, r in pts.iterrows()]})
+    fig, axes = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
+    _plot_over_time(axes[0], runset, pts, "faces", labels, "faces")
+    _plot_over_time(axes[1], runset, pts, "faces_in_view", labels, "faces in view")
+    _plot_over_time(axes[2], runset, pts, "error_px", labels, "screen-space error (px)")
+    for ax in axes:
+        for c in cuts:
+            ax.axvline(c, color="0.2", ls=":", lw=1.0)
+    axes[2].set_xlabel("simulated time (s); dotted: camera cuts")
+    fig.suptitle("Temporal anticipation of camera cuts (the paper's Fig. 3)")
+    fig.tight_layout()
+    return save_figure(fig, out, "ablation_anticipation") + write_table(
+        table, out, "ablation_anticipation",
+        f"Anticipation ablation (the paper's Fig. 3); error after a cut: mean over {CUT_WINDOW_FRAMES} frames "
+        f"from each cut at {', '.join(f'{c:g} s' for c in cuts) or '(no cut)'}")
+
+
+def make(runset: RunSet, out, paper_timings=None, log=print) -> list[Path]:
+    """ablation_buckling.* and ablation_anticipation.* (each when its runs are there)."""
+    files, skipped = [], []
+    for fn in (buckling, anticipation):
+        try:
+            files += fn(runset, out)
+        except Skip as exc:
+            skipped.append(str(exc))
+    if not files:
+        raise Skip("; ".join(skipped))
+    for s in skipped:
+        log(f"ablations: skipped {s}")
+    return files
+
+
+def main(argv=None) -> int:
+    return script_main(make, "ablations", argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,205 @@
+"""What the figure scripts share: the Agg backend, colours, atomic saving, the paper's per-frame
+timings, run selection and the command line of a single script."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from cloth.io.manifest import write_text_atomic  # noqa: E402
+from experiments.aggregate import (AggregateError, RunSet, check_roots, latest, load_runs,  # noqa: E402
+                                   report_problems)
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_OUT = REPO_ROOT / "results" / "paper_figures"
+DEFAULT_PAPER_TIMINGS = REPO_ROOT.parent / "shared" / "paper-timings"  # beside the clone in CI; optional
+MODE_COLORS = {"nonadaptive": "tab:gray", "adaptive": "tab:blue", "viewdep": "tab:orange"}
+MODE_MARKERS = {"nonadaptive": "s", "adaptive": "o", "viewdep": "^"}
+MODE_NAMES = {"nonadaptive": "non-adaptive", "adaptive": "adaptive", "viewdep": "view-dependent"}
+FIGURE_FORMATS = ("png", "pdf")  # PDF as well: line plots are cheap to write as vectors
+DPI = 150
+
+# The paper's per-frame records (../shared/paper-timings, see its README): (scene, mode) -> files;
+# several files are one crowd (one per dancer), summed per frame.
+PAPER_TIMING_FILES = {
+    ("karate", "nonadaptive"): ("karate_hires.csv",),
+    ("karate", "adaptive"): ("karate_rahuls.csv",),
+    ("karate", "viewdep"): ("karate_vd.csv",),
+    ("solo_dancer", "nonadaptive"): ("solo_hires_1.csv",),
+    ("solo_dancer", "adaptive"): ("solo_rahuls_1.csv",),
+    ("solo_dancer", "viewdep"): ("solo_vd_1.csv",),
+    ("multiple_dancers", "viewdep"): tuple(f"crowd_vd_{i}.csv" for i in range(10)),
+}
+PAPER_TIMING_COLUMNS = {"FrameNum": "frame", "Time/Frame": "wall_s", "Faces": "faces", "Verts": "verts"}
+
+
+class Skip(Exception):
+    """A figure or table that cannot be made from the runs at hand; the message says why."""
+
+
+def color(mode: str) -> str:
+    return MODE_COLORS.get(mode, "tab:purple")
+
+
+def save_figure(fig, out_dir, stem: str) -> list[Path]:
+    """Save `fig` as <stem>.png and .pdf in out_dir, each atomically (temporary file, then rename)."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    files = []
+    for ext in FIGURE_FORMATS:
+        target = out_dir / f"{stem}.{ext}"
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=f".{ext}", dir=out_dir)
+        os.close(fd)
+        try:
+            fig.savefig(tmp, format=ext, dpi=DPI, bbox_inches="tight")
+            os.chmod(tmp, 0o644)
+            os.replace(tmp, target)
+        finally:
+            Path(tmp).unlink(missing_ok=True)
+        files.append(target)
+    plt.close(fig)
+    return files
+
+
+def write_table(df: pd.DataFrame, out_dir, stem: str, title: str, floatfmt: str = "{:.4g}") -> list[Path]:
+    """<stem>.csv (raw values) and <stem>.md (a Markdown table under `title`), atomically."""
+    out_dir = Path(out_dir)
+
+    def cell(v):
+        if isinstance(v, (bool, np.bool_)):
+            return "yes" if v else "no"
+        if isinstance(v, (float, np.floating)):
+            return "" if math.isnan(v) else floatfmt.format(v)
+        return str(v)
+
+    lines = [f"# {title}", "", "| " + " | ".join(df.columns) + " |",
+             "| " + " | ".join("---" for _ in df.columns) + " |"]
+    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in df.itertuples(index=False)]
+    csv, md = out_dir / f"{stem}.csv", out_dir / f"{stem}.md"
+    write_text_atomic(csv, df.to_csv(index=False))
+    write_text_atomic(md, "\n".join(lines) + "\n")
+    return [csv, md]
+
+
+def resolve_paper_timings(path) -> Path | None:
+    """The paper-timings folder: `path` when given (AggregateError if it is not a folder), else
+    DEFAULT_PAPER_TIMINGS when it exists, else None."""
+    if path is None:
+        return DEFAULT_PAPER_TIMINGS if DEFAULT_PAPER_TIMINGS.is_dir() else None
+    p = Path(path)
+    if not p.is_dir():
+        raise AggregateError(f"--paper-timings {str(path)!r} is not a folder")
+    return p
+
+
+def read_paper_timings(folder) -> dict[tuple[str, str], pd.DataFrame]:
+    """The paper's per-frame records: (scene, mode) -> frame, wall_s, faces, verts (a crowd's
+    dancers summed per frame). A (scene, mode) whose files are absent or unreadable is left out."""
+    out = {}
+    if folder is None:
+        return out
+    folder = Path(folder)
+    for key, names in PAPER_TIMING_FILES.items():
+        try:
+            tables = [pd.read_csv(folder / n, usecols=list(PAPER_TIMING_COLUMNS)).rename(columns=PAPER_TIMING_COLUMNS)
+                      .set_index("frame") for n in names]
+        except (OSError, ValueError):
+            continue
+        total = tables[0]
+        for t in tables[1:]:
+            total = total.add(t, fill_value=None).dropna()
+        out[key] = total.reset_index()
+    return out
+
+
+def frame_times(frames: pd.DataFrame, frame_time_s: float) -> np.ndarray:
+    """Simulated time (s) of each frame: sim_time_s, else frame x frame time, else the frame number."""
+    if "sim_time_s" in frames.columns and frames["sim_time_s"].notna().all():
+        return frames["sim_time_s"].to_numpy(float)
+    if np.isfinite(frame_time_s):
+        return frames["frame"].to_numpy(float) * frame_time_s
+    return frames["frame"].to_numpy(float)
+
+
+def time_unit(total_s: float) -> tuple[float, str]:
+    """(divisor, unit) to show a cumulative time readably."""
+    if total_s > 3 * 3600:
+        return 3600.0, "h"
+    if total_s > 180:
+        return 60.0, "min"
+    return 1.0, "s"
+
+
+def study_or_all(runs: pd.DataFrame, study: str) -> pd.DataFrame:
+    """The runs of `study` when there are any, else all runs; never the fine references."""
+    if runs.empty:
+        return runs
+    runs = runs[~runs["reference"].astype(bool)]
+    s = runs[runs["study"] == study]
+    return s if len(s) else runs
+
+
+def _key(v):
+    return "none" if v is None or (isinstance(v, float) and math.isnan(v)) else v
+
+
+def one_factor(runs: pd.DataFrame, factor: str, others) -> pd.DataFrame:
+    """The runs among `runs` in which only `factor` varies: grouped by the `others` columns, the
+    group with the most distinct values of `factor` (at least two), the latest run per value;
+    empty when no group varies `factor`."""
+    if runs.empty:
+        return runs
+    keys = runs[list(others)].apply(lambda r: tuple(_key(v) for v in r), axis=1)
+    best, best_n = None, 1
+    for k in keys.drop_duplicates():
+        group = runs[keys == k]
+        n = group[factor].map(_key).nunique()
+        if n > best_n:
+            best, best_n = group, n
+    if best is None:
+        return runs.iloc[0:0]
+    best = best.assign(_f=best[factor].map(_key))
+    chosen, _ = latest(best, ("_f",))
+    return chosen.drop(columns="_f")
+
+
+def script_main(make, name: str, argv=None) -> int:
+    """The command line of one figure script: ROOT [ROOT ...] [--out DIR] [--paper-timings PATH]."""
+    ap = argparse.ArgumentParser(prog=f"python -m paper_figures.{name}",
+                                 description=(make.__doc__ or "").split("\n")[0])
+    ap.add_argument("roots", nargs="+", type=Path, help="folders searched for run folders")
+    ap.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT})")
+    ap.add_argument("--paper-timings", type=Path, default=None,
+                    help=f"the paper's per-frame records (default {DEFAULT_PAPER_TIMINGS}, if present)")
+    args = ap.parse_args(argv)
+    try:
+        check_roots(args.roots)
+        timings = resolve_paper_timings(args.paper_timings)
+    except AggregateError as exc:
+        print(f"{name}: {exc}", file=sys.stderr)
+        return 2
+    runset = load_runs(args.roots, warn=False)
+    report_problems(runset.problems)
+    try:
+        files = make(runset, args.out, paper_timings=timings, log=print)
+    except Skip as exc:
+        print(f"{name}: skipped: {exc}")
+        return 0
+    for f in files:
+        print(f"wrote {f}")
+    return 0
+
+
+__all__ = ["RunSet", "Skip", "save_figure", "write_table", "read_paper_timings", "resolve_paper_timings",
+           "one_factor", "study_or_all", "script_main", "frame_times", "time_unit", "color"]

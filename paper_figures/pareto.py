@@ -1,0 +1,93 @@
+"""What accuracy costs in time: screen-space error (error_px_mean) against mean time per frame over
+every run that has accuracy (all modes and sweep settings), coloured by mode, labelled by
+variant, the Pareto front marked; one panel per scene and scale (errors of different scenes are
+not comparable).
+
+    python -m paper_figures.pareto ROOT [ROOT ...] [--out DIR]
+
+Writes pareto.png/.pdf and pareto.csv/.md (every point; on_front marks the front: no other run of
+the same scene and scale is at least as fast and at least as accurate, and better in one).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+
+from experiments.aggregate import MODES, baseline_for
+
+from .common import MODE_MARKERS, MODE_NAMES, RunSet, Skip, color, save_figure, script_main, write_table
+
+
+def pareto_front(time_s, error) -> np.ndarray:
+    """on_front[i]: no point j has time_j <= time_i and error_j <= error_i with one of them <."""
+    t, e = np.asarray(time_s, float), np.asarray(error, float)
+    dominated = ((t[None, :] <= t[:, None]) & (e[None, :] <= e[:, None])
+                 & ((t[None, :] < t[:, None]) | (e[None, :] < e[:, None])))
+    return ~dominated.any(axis=1)
+
+
+def pareto_table(runs: pd.DataFrame) -> pd.DataFrame:
+    """One row per run with accuracy (never a reference): scene, scale, mode, variant, run,
+    time_mean_s, error_px_mean, faces_mean, speedup (against the scene's adaptive run), on_front."""
+    if runs.empty:
+        return pd.DataFrame()
+    pts = runs[~runs["reference"].astype(bool) & runs["error_px_mean"].notna() & runs["time_mean_s"].notna()]
+    rows = []
+    for (scene, scale), g in pts.groupby(["scene", "scale"], sort=True):
+        front = pareto_front(g["time_mean_s"], g["error_px_mean"])
+        base = baseline_for(runs, scene, scale)
+        for r, on in zip(g.itertuples(), front):
+            rows.append({"scene": scene, "scale": scale, "mode": r.mode, "variant": r.variant or r.mode, "run": r.run,
+                         "time_mean_s": r.time_mean_s, "error_px_mean": r.error_px_mean, "faces_mean": r.faces_mean,
+                         "speedup": base["time_mean_s"] / r.time_mean_s if base is not None else np.nan,
+                         "on_front": bool(on)})
+    out = pd.DataFrame(rows)
+    return out.sort_values(["scene", "scale", "time_mean_s"]).reset_index(drop=True) if len(out) else out
+
+
+def make(runset: RunSet, out, paper_timings=None, log=print) -> list[Path]:
+    """pareto.png/.pdf and pareto.csv/.md."""
+    table = pareto_table(runset.runs)
+    if table.empty:
+        raise Skip("no run with accuracy (experiments.accuracy against a reference)")
+    groups = list(table.groupby(["scene", "scale"], sort=True))
+    cols = min(len(groups), 3)
+    rows = math.ceil(len(groups) / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(6 * cols, 4.5 * rows), squeeze=False)
+    for ax, ((scene, scale), g) in zip(axes.flat, groups):
+        for mode in sorted(g["mode"].unique(), key=lambda m: MODES.index(m) if m in MODES else 9):
+            m = g[g["mode"] == mode]
+            ax.scatter(m["time_mean_s"], m["error_px_mean"], color=color(mode), marker=MODE_MARKERS.get(mode, "D"),
+                       s=36, label=MODE_NAMES.get(mode, mode), zorder=3)
+        for r in g.itertuples():
+            ax.annotate(r.variant, (r.time_mean_s, r.error_px_mean), fontsize=7, xytext=(4, 3),
+                        textcoords="offset points")
+        f = g[g["on_front"]].sort_values("time_mean_s")
+        ax.scatter(f["time_mean_s"], f["error_px_mean"], s=110, facecolors="none", edgecolors="k", lw=1.0, zorder=4)
+        ax.step(f["time_mean_s"], f["error_px_mean"], where="post", color="k", lw=1.0, ls="--", label="Pareto front",
+                zorder=2)
+        ax.set_xlabel("time per frame, mean (s)")
+        ax.set_ylabel("screen-space error, mean (px)")
+        ax.set_title(f"{scene} ({scale})" if scale else scene)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    for ax in list(axes.flat)[len(groups):]:
+        ax.axis("off")
+    fig.suptitle("Accuracy against time per frame (lower left is better)")
+    fig.tight_layout()
+    return save_figure(fig, out, "pareto") + write_table(
+        table, out, "pareto", "Accuracy against time: every run with accuracy; on_front = on the Pareto front")
+
+
+def main(argv=None) -> int:
+    return script_main(make, "pareto", argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,112 @@
+"""Sweep figures: speed-up against adaptive and screen-space error against each parameter of the
+view-dependent method (nu_out, buckling k, anticipation window T, margin).
+
+    python -m paper_figures.sweeps ROOT [ROOT ...] [--out DIR]
+
+Writes sweep_<param>.png/.pdf per parameter that varies and sweeps.csv/.md (every point). Runs
+of a parameter: its study's (sweep_<param>) when present, else all; within each scene and scale,
+the viewdep runs in which only that parameter varies (experiments of one factor), the latest
+per value. Speed-up = mean time per frame of the scene's adaptive run / the point's; error =
+error_px_mean of accuracy.json (absent points are left out of that panel). The paper's value of
+each parameter is marked by a dashed line.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+
+from experiments.aggregate import baseline_for
+
+from .common import RunSet, Skip, one_factor, save_figure, script_main, study_or_all, write_table
+
+# parameter -> (runs-table column, axis label, log axis, the paper's value)
+PARAMETERS = {
+    "nu_out": ("nu_out", r"$\nu_{out}$ (view factor far out of view)", True, 0.01),
+    "k": ("buckling_k", "buckling exponent k (eq 11)", True, 10.0),
+    "T": ("T", "anticipation window T (frames, eq 4)", False, 5.0),
+    "margin": ("margin", "margin m (metres, eq 3)", False, 0.4),
+}
+OTHERS = ("nu_out", "margin", "T", "anticipation", "buckling_k", "buckling_mode")
+
+
+def sweep_points(runs: pd.DataFrame, param: str) -> pd.DataFrame:
+    """The points of one parameter's sweep: scene, scale, value, run, variant, faces_mean,
+    time_mean_s, speedup, error_px_mean (one row per value per scene and scale)."""
+    col = PARAMETERS[param][0]
+    cand = study_or_all(runs, f"sweep_{param}")
+    if cand.empty:
+        return pd.DataFrame()
+    vd = cand[(cand["mode"] == "viewdep") & cand[col].notna()]
+    if param == "k":
+        vd = vd[vd["buckling_mode"] == "adaptive"]
+    rows = []
+    for (scene, scale), group in vd.groupby(["scene", "scale"], sort=True):
+        pts = one_factor(group, col, [c for c in OTHERS if c != col])
+        if pts.empty:
+            continue
+        base = baseline_for(cand, scene, scale)
+        if base is None:
+            base = baseline_for(runs, scene, scale)
+        for r in pts.sort_values(col).itertuples():
+            rows.append({"parameter": param, "scene": scene, "scale": scale, "value": float(getattr(r, col)),
+                         "run": r.run, "variant": r.variant, "faces_mean": r.faces_mean, "time_mean_s": r.time_mean_s,
+                         "speedup": base["time_mean_s"] / r.time_mean_s if base is not None else np.nan,
+                         "baseline": base["run"] if base is not None else "", "error_px_mean": r.error_px_mean})
+    return pd.DataFrame(rows)
+
+
+def _figure(points: pd.DataFrame, param: str):
+    _, label, log, paper_value = PARAMETERS[param]
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    for (scene, scale), g in points.groupby(["scene", "scale"], sort=True):
+        name = f"{scene} ({scale})" if scale else scene
+        axes[0].plot(g["value"], g["speedup"], "o-", label=name)
+        axes[1].plot(g["value"], g["error_px_mean"], "o-", label=name)
+    axes[0].set_ylabel("speed-up against adaptive (x)")
+    axes[0].axhline(1.0, color="0.5", lw=0.8)
+    axes[1].set_ylabel("screen-space error, mean (px)")
+    for ax, col in zip(axes, ("speedup", "error_px_mean")):
+        ax.set_xlabel(label)
+        if log and (points["value"] > 0).all():
+            ax.set_xscale("log")
+        ax.axvline(paper_value, color="0.3", ls="--", lw=0.8, label="paper's value")
+        ax.grid(alpha=0.3)
+        if not points[col].notna().any():
+            ax.text(0.5, 0.5, "not measured" if col == "error_px_mean" else "no adaptive run",
+                    transform=ax.transAxes, ha="center", va="center", color="0.4")
+        ax.legend(fontsize=8)
+    fig.suptitle(f"Sweep of {param}: what it buys in time and costs in accuracy")
+    fig.tight_layout()
+    return fig
+
+
+def make(runset: RunSet, out, paper_timings=None, log=print) -> list[Path]:
+    """sweep_<param>.png/.pdf for every parameter swept in the runs, and sweeps.csv/.md."""
+    files, tables, absent = [], [], []
+    for param in PARAMETERS:
+        pts = sweep_points(runset.runs, param)
+        if pts.empty:
+            absent.append(param)
+            continue
+        tables.append(pts)
+        files += save_figure(_figure(pts, param), out, f"sweep_{param}")
+    if not tables:
+        raise Skip(f"no viewdep runs that vary only one of {', '.join(PARAMETERS)}")
+    if absent:
+        log(f"sweeps: no sweep of {', '.join(absent)} (no viewdep runs that vary only it)")
+    files += write_table(pd.concat(tables, ignore_index=True), out, "sweeps",
+                         "Sweeps: speed-up against adaptive and screen-space error per parameter value")
+    return files
+
+
+def main(argv=None) -> int:
+    return script_main(make, "sweeps", argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

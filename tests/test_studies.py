@@ -1,0 +1,139 @@
+"""Studies (conf/experiment/*) and where their runs go (conf/cluster/*).
+
+Checks: every preset's every point composes and passes the run's own validation (so a study
+never fails on its 7th run for a typo); a multirun goes through the default joblib launcher,
+the submitit launcher (local mode: the SLURM code path without a scheduler) and the Ray
+launcher against a local Ray instance; a study ends with its callback, which measures every run
+against the reference run and aggregates the folders into tables.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+from hydra import compose, initialize_config_dir
+
+ROOT = Path(__file__).resolve().parents[1]
+CONF = str(ROOT / "conf")
+EXPERIMENTS = sorted(p.stem for p in (ROOT / "conf" / "experiment").glob("*.yaml"))
+# A tiny multirun: 2 frames of the sheet dropped on a sphere, no recording.
+TINY = ["scene=sheet_on_sphere", "frames=2", "output.rerun=false", "output.progress=false"]
+
+
+def _sweep(experiment: str) -> dict:
+    params = yaml.safe_load((ROOT / "conf" / "experiment" / f"{experiment}.yaml").read_text())["hydra"]["sweeper"]["params"]
+    return {k: [v.strip() for v in str(vals).split(",")] for k, vals in params.items()}
+
+
+def _runs(experiment: str) -> list[list[str]]:
+    """Every run of a preset as a list of overrides (the grid the basic sweeper makes)."""
+    grid = [[]]
+    for key, values in _sweep(experiment).items():
+        grid = [g + [f"{key}={v}"] for g in grid for v in values]
+    return [[f"+experiment={experiment}"] + g for g in grid]
+
+
+def test_presets_are_the_issue_s_studies():
+    assert set(EXPERIMENTS) >= {"table1", "sweep_nu_out", "sweep_k", "sweep_T", "sweep_margin",
+                                "ablation_buckling", "ablation_anticipation", "accuracy"}
+    assert _sweep("table1") == {"scene": ["karate", "solo_dancer", "multiple_dancers"],
+                                "+point": ["nonadaptive", "adaptive", "viewdep"]}
+
+
+@pytest.mark.parametrize("experiment", EXPERIMENTS)
+def test_every_point_of_every_preset_validates(experiment):
+    from experiments.build import build_simulation, crowd_size
+
+    seen = set()
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        for overrides in _runs(experiment):
+            for scale in ("small", "paper"):
+                cfg = compose(config_name="config", overrides=overrides + [f"scale={scale}"])
+                assert cfg.study == experiment
+                assert cfg.variant, f"{overrides}: every point names its variant"
+                point = overrides[-1].split("=", 1)[1]
+                if point != "reference":
+                    assert not cfg.reference
+                else:
+                    assert cfg.reference and cfg.mode.name == "nonadaptive"
+                key = (cfg.scene.name, point, scale)
+                if scale == "paper" or key in seen:  # building paper-scale meshes is slow; small checks every key
+                    continue
+                seen.add(key)
+                crowd_size(cfg)
+                build_simulation(cfg, character=0 if cfg.scene.name == "multiple_dancers" else None)
+
+
+def test_sweep_points_set_what_they_name():
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        def cfg(point):
+            return compose(config_name="config", overrides=["scene=solo_dancer", f"+point={point}"])
+        assert cfg("nu_out/0.001").mode.view.nu_out == 0.001
+        assert cfg("k/50").mode.buckling.k == 50
+        assert cfg("T/0").mode.view.anticipation_frames == 0
+        assert cfg("margin/0.8").mode.view.margin == 0.8
+        assert cfg("buckling/none").mode.buckling is None
+        assert cfg("buckling/uniform").mode.buckling.mode == "uniform"
+        assert cfg("anticipation/off").mode.view.anticipation is False
+        assert cfg("adaptive").mode.name == "adaptive"
+        ref = cfg("reference")
+        assert ref.reference and ref.mode.name == "nonadaptive"
+
+
+def _multirun(tmp_path: Path, *overrides: str, env=None, timeout=600) -> Path:
+    sweep = tmp_path / "sweep"
+    cmd = [sys.executable, "-m", "experiments.run", "-m", *TINY, *overrides, f"hydra.sweep.dir={sweep}"]
+    full_env = {**os.environ, **(env or {})}
+    full_env.pop("RAY_ADDRESS", None)  # a Ray run here starts its own local instance
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=timeout, env=full_env)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return sweep
+
+
+def _completed(sweep: Path) -> list[Path]:
+    runs = sorted(p for p in sweep.iterdir() if (p / "summary.json").exists())
+    return [r for r in runs if json.loads((r / "summary.json").read_text())["status"] == "completed"]
+
+
+def test_joblib_multirun_with_study_callback_measures_and_aggregates(tmp_path):
+    """The default launcher runs a 3-run study (reference, adaptive, viewdep) in 2 processes; its
+    callback writes accuracy against the reference and the study's tables."""
+    sweep = _multirun(tmp_path, "camera=sheet_half", "+point=reference,adaptive,viewdep", "study=tiny",
+                      "+hydra.callbacks.study._target_=experiments.callbacks.StudyCallback")
+    runs = _completed(sweep)
+    assert len(runs) == 3
+    cfgs = [yaml.safe_load((r / "config.yaml").read_text()) for r in runs]
+    assert sorted(c["variant"] for c in cfgs) == ["adaptive", "reference", "viewdep"]
+    for r, c in zip(runs, cfgs):
+        acc = r / "accuracy.json"
+        assert acc.exists() != bool(c["reference"]), f"{r.name}: accuracy against the reference, except the reference"
+        if acc.exists():
+            assert json.loads(acc.read_text())["frames"] >= 2
+    from experiments.aggregate import load_runs
+    loaded = load_runs([sweep])
+    assert len(loaded.runs) == 3 and not loaded.problems
+    assert (sweep / "figures").is_dir() and any((sweep / "figures").iterdir())
+
+
+def test_submitit_local_launcher(tmp_path):
+    """cluster=slurm_local: the submitit launcher's code path (pickled jobs, results collected)."""
+    sweep = _multirun(tmp_path, "cluster=slurm_local", "seed=0,1")
+    assert len(_completed(sweep)) == 2
+
+
+def test_slurm_preset_selects_the_submitit_slurm_launcher():
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        cfg = compose(config_name="config", overrides=["cluster=slurm"], return_hydra_config=True)
+    assert "SlurmLauncher" in cfg.hydra.launcher._target_
+    assert cfg.hydra.launcher.cpus_per_task >= 1
+
+
+def test_ray_launcher_on_a_local_ray_instance(tmp_path):
+    sweep = _multirun(tmp_path, "cluster=ray", "seed=0,1", env={"RAY_NUM_CPUS": "2"})
+    assert len(_completed(sweep)) == 2
