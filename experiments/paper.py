@@ -12,7 +12,7 @@ table and figure from the run folders into ``<out>/figures/``, and the paths are
 A study that fails (a run that diverges, a killed process) does not stop the others: its run
 folders stay as written, the aggregation reports the broken ones by name and skips them, and the
 job exits non-zero at the end. At scale=small the default studies (table1, accuracy) take about
-20-30 minutes on 2 cores; at scale=paper expect a day (see README: running at paper scale).
+22 minutes on 2 cores; at scale=paper expect a day or a cluster (README: Studies, Scale).
 """
 
 from __future__ import annotations
