@@ -11,34 +11,21 @@ status: 0, or 1 when a script failed (the others still run), 2 on bad arguments.
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import sys
 import traceback
-from pathlib import Path
 
 from cloth.io.manifest import write_text_atomic
-from experiments.aggregate import AggregateError, check_roots, load_runs, report_problems
 
 from . import FIGURES
-from .common import DEFAULT_OUT, DEFAULT_PAPER_TIMINGS, Skip, resolve_paper_timings
+from .common import Skip, parse_and_load
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m paper_figures", description=__doc__.split("\n")[0])
-    ap.add_argument("roots", nargs="+", type=Path, help="folders searched for run folders")
-    ap.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT})")
-    ap.add_argument("--paper-timings", type=Path, default=None,
-                    help=f"the paper's per-frame records for Fig. 8 (default {DEFAULT_PAPER_TIMINGS}, if present)")
-    args = ap.parse_args(argv)
-    try:
-        check_roots(args.roots)
-        timings = resolve_paper_timings(args.paper_timings)
-    except AggregateError as exc:
-        print(f"paper_figures: {exc}", file=sys.stderr)
+    loaded = parse_and_load("paper_figures", __doc__.split("\n")[0], argv)
+    if loaded is None:
         return 2
-    runset = load_runs(args.roots, warn=False)
-    report_problems(runset.problems)
+    args, timings, runset = loaded
     print(f"paper_figures: {len(runset.runs)} run(s) from {', '.join(map(str, args.roots))}"
           + (f"; the paper's timings from {timings}" if timings else "; no paper timings"))
     files = [args.out / "runs.csv", args.out / "problems.txt"]

@@ -174,23 +174,33 @@ def one_factor(runs: pd.DataFrame, factor: str, others) -> pd.DataFrame:
     return chosen.drop(columns="_f")
 
 
-def script_main(make, name: str, argv=None) -> int:
-    """The command line of one figure script: ROOT [ROOT ...] [--out DIR] [--paper-timings PATH]."""
-    ap = argparse.ArgumentParser(prog=f"python -m paper_figures.{name}",
-                                 description=(make.__doc__ or "").split("\n")[0])
+def parse_and_load(prog: str, description: str, argv=None):
+    """The shared command line ROOT [ROOT ...] [--out DIR] [--paper-timings PATH]: parse it, check
+    the roots and the timings, load the runs and report the broken folders. Returns
+    (args, paper timings or None, RunSet), or None after one message naming a bad argument."""
+    ap = argparse.ArgumentParser(prog=f"python -m {prog}", description=description)
     ap.add_argument("roots", nargs="+", type=Path, help="folders searched for run folders")
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT})")
     ap.add_argument("--paper-timings", type=Path, default=None,
-                    help=f"the paper's per-frame records (default {DEFAULT_PAPER_TIMINGS}, if present)")
+                    help=f"the paper's per-frame records for Fig. 8 (default {DEFAULT_PAPER_TIMINGS}, if present)")
     args = ap.parse_args(argv)
     try:
         check_roots(args.roots)
         timings = resolve_paper_timings(args.paper_timings)
     except AggregateError as exc:
-        print(f"{name}: {exc}", file=sys.stderr)
-        return 2
+        print(f"{prog.rsplit('.', 1)[-1]}: {exc}", file=sys.stderr)
+        return None
     runset = load_runs(args.roots, warn=False)
     report_problems(runset.problems)
+    return args, timings, runset
+
+
+def script_main(make, name: str, argv=None) -> int:
+    """The command line of one figure script: ROOT [ROOT ...] [--out DIR] [--paper-timings PATH]."""
+    loaded = parse_and_load(f"paper_figures.{name}", (make.__doc__ or "").split("\n")[0], argv)
+    if loaded is None:
+        return 2
+    args, timings, runset = loaded
     try:
         files = make(runset, args.out, paper_timings=timings, log=print)
     except Skip as exc:
@@ -202,4 +212,4 @@ def script_main(make, name: str, argv=None) -> int:
 
 
 __all__ = ["RunSet", "Skip", "save_figure", "write_table", "read_paper_timings", "resolve_paper_timings",
-           "one_factor", "study_or_all", "script_main", "frame_times", "time_unit", "color"]
+           "one_factor", "study_or_all", "parse_and_load", "script_main", "frame_times", "time_unit", "color"]
