@@ -3,8 +3,16 @@
 Once every `every` frames, before the frame's steps:
 
     sizing field per face  ->  area-weighted transfer to verts  ->  remesh (cloth.remesh)
+    [->  crossing guard: redo the remesh with new crossings' nodes frozen]
     ->  rebuild masses, rest data, sparsity (Simulation.rebuild)
     ->  push nodes out of obstacles  ->  pop filter  ->  push nodes out of obstacles
+    [->  the push-outs' and pop filter's motion made free of self-collisions]
+
+The bracketed stages run in scenes that declare `self_collision`. Without them, a dense pile
+or a layered garment is remeshed into crossings: a flip or collapse near another layer passes
+the new faces through it (the guard), and the push-out and pop filter move nodes through a
+layer within the thickness (the self-collision response treats their displacement as a step's
+motion, `collision_free_motion`). What still crosses is untangled by the frame loop.
 
 A split puts its new node at the midpoint of the edge's nodes; where the edge spans a curved
 obstacle (a coarse face over a sphere) that midpoint lies inside it, centimetres deep. Those
@@ -31,7 +39,15 @@ INTERNAL_TERMS = ("membrane", "bending")
 REMESH_RECORD = {"remeshed": 0, "remesh_splits": 0, "remesh_collapses": 0, "remesh_flips": 0,
                  "remesh_nodes_pushed_out": 0, "remesh_max_depth_m": 0.0,
                  "pop_energy_before_j": float("nan"), "pop_energy_after_j": float("nan"),
-                 "pop_iterations": 0}
+                 "pop_iterations": 0, "remesh_ccd_hits": 0, "remesh_guard_rounds": 0, "remesh_frozen_nodes": 0}
+# Crossing guard (scenes with self_collision): when a remesh made the cloth cross itself (more
+# crossing face pairs than it had), it is redone from the same input with the nodes around the
+# new crossings frozen (no flip or collapse there), at most this many times; what is left goes
+# to the untangling.
+CROSSING_GUARD_ROUNDS = 3
+# Padding of a crossing pair's box, in units of its longest edge, tried in turn until the box
+# holds an input node not yet frozen (a box around new split nodes may hold none).
+CROSSING_GUARD_PADS = (0.0, 0.5, 1.0, 2.0)
 
 
 def restore_momentum(mesh, momentum: np.ndarray) -> None:
@@ -59,6 +75,22 @@ def push_out_of_obstacles(sim) -> dict:
     scratch_v = mesh.node_v.copy()  # the projection edits velocities; a remesh must not
     return sim.contact(mesh.node_x, scratch_v, mesh.node_pinned, sim.obstacle_set, sim.scene.thickness, 0.0,
                        sim.scene.dt)
+
+
+def collision_free_motion(sim, x_from: np.ndarray) -> int:
+    """Make the motion of the nodes from `x_from` to where they are now free of self-collisions.
+
+    The obstacle push-out and the pop filter move nodes after a remesh without looking at the
+    other layers of cloth; a layer within the thickness of another is then pushed through it.
+    Their displacement is treated like a step's motion: the self-collision response (proximity,
+    CCD, impact zones) corrects it, so a remesh that made no crossing leaves none. Positions
+    only: velocities are the remesh's. Returns the CCD collisions found.
+    """
+    from .selfcollision import resolve_self_collisions
+    mesh = sim.mesh
+    s = resolve_self_collisions(mesh.face_nodes, mesh.face_edges, mesh.edge_nodes, x_from, mesh.node_x,
+                                mesh.node_m, mesh.node_pinned, sim.self_collision)
+    return int(s["self_ccd_hits"])
 
 
 def changed_faces(old, new, node_origin: np.ndarray) -> np.ndarray:
@@ -92,6 +124,44 @@ class AdaptiveRemesher:
         obstacles = sim.obstacle_set if sim.contact is not None else None
         return physics_face_sizing(sim.mesh, self.sizing, obstacles)
 
+    def _avoid_crossings(self, mesh, vert_M, data, handle_id, result, stats):
+        """Redo a remesh that made the cloth cross itself, with the crossings' surroundings frozen.
+
+        Splits keep the surface (a new node on its edge), but a flip replaces two faces by the
+        other diagonal's and a collapse moves a node onto its neighbour; where another layer lies
+        within the change, the new faces cross it, and CCD, which assumes a crossing-free start,
+        cannot see that. The input nodes within each new crossing's reach (its two faces' box,
+        padded if need be, CROSSING_GUARD_PADS) are frozen, and the remesh runs again; the frozen set grows
+        until the remesh adds no crossing or CROSSING_GUARD_ROUNDS is reached.
+        """
+        from .bvh import cross_overlaps
+        from .untangle import find_intersections
+        n_before = None
+        frozen = np.zeros(mesh.n_nodes, dtype=bool)
+        for r in range(CROSSING_GUARD_ROUNDS):
+            out = result.mesh
+            pairs = find_intersections(out.face_nodes, out.node_x)[0]
+            if len(pairs) == 0:
+                break
+            if n_before is None:
+                n_before = len(find_intersections(mesh.face_nodes, mesh.node_x)[0])
+            if len(pairs) <= n_before:
+                break
+            corners = out.node_x[out.face_nodes[pairs].reshape(len(pairs), 6)]  # (P, 6, 3)
+            edges = corners[:, [1, 2, 0, 4, 5, 3]] - corners
+            longest = np.sqrt(np.einsum("pij,pij->pi", edges, edges).max(axis=1))[:, None]
+            for pad in CROSSING_GUARD_PADS:  # the pairs' boxes, padded only if they hold no new input node
+                near = cross_overlaps(mesh.node_x, mesh.node_x, corners.min(axis=1) - pad * longest,
+                                      corners.max(axis=1) + pad * longest)[:, 0]
+                if not frozen[near].all():
+                    break
+            if frozen[near].all():
+                break  # nothing more to freeze: the crossings were there before
+            frozen[near] = True
+            result = remesh(mesh, vert_M, data, handle_id, self.params, frozen=frozen)
+            stats.update(remesh_guard_rounds=r + 1, remesh_frozen_nodes=int(frozen.sum()))
+        return result
+
     def remesh(self, sim, timings: dict, stats: dict) -> bool:
         """Remesh `sim` if this frame is due; True when the mesh changed."""
         if sim.frame % int(self.every) != 0:
@@ -118,6 +188,8 @@ class AdaptiveRemesher:
         momentum = mesh.node_m @ mesh.node_v
         data = np.hstack([mesh.node_x, mesh.node_v, a_int, anchor])
         result = remesh(mesh, vert_M, data, handle_id, self.params)
+        if sim.self_collision is not None and result.changed:
+            result = self._avoid_crossings(mesh, vert_M, data, handle_id, result, stats)
         stats.update(remeshed=1, remesh_splits=result.splits, remesh_collapses=result.collapses,
                      remesh_flips=result.flips)
         if not result.changed:
@@ -132,6 +204,7 @@ class AdaptiveRemesher:
             h.local = np.ascontiguousarray(nd[sel, 9:12])
         sim.rebuild()
         restore_momentum(new, momentum)
+        x_topo = new.node_x.copy()  # the remeshed surface: the old one, re-triangulated
         pushed = push_out_of_obstacles(sim)
         stats.update(remesh_nodes_pushed_out=pushed["contacts"], remesh_max_depth_m=pushed["max_depth_m"])
         if use_pop:
@@ -141,5 +214,7 @@ class AdaptiveRemesher:
             stats.update(pop_energy_before_j=out["energy_before_j"], pop_energy_after_j=out["energy_after_j"],
                          pop_iterations=out["iterations"])
             push_out_of_obstacles(sim)
+        if sim.self_collision is not None:
+            stats["remesh_ccd_hits"] = collision_free_motion(sim, x_topo)
         timings["remesh"] += time.perf_counter() - t1
         return True

@@ -299,8 +299,17 @@ def _flip_keeps_world_strain(fv, vu, vnode, nd, f, k, g, l, max_strain):
 
 
 @nb.njit(cache=True)
+def _touches_frozen(fv, vnode, nd, fz, f, g):
+    """True when a vert of face f or g has a frozen node (node data column fz > 0)."""
+    for s in range(3):
+        if nd[vnode[fv[f, s]], fz] > 0.0 or nd[vnode[fv[g, s]], fz] > 0.0:
+            return True
+    return False
+
+
+@nb.njit(cache=True)
 def _flip_pass(fv, fadj, ftw, falive, vu, vM, vface, vnode, nd, max_strain, stack, n_stack, threshold, max_flips,
-               fdirty):
+               fdirty, fz):
     """Lawson flipping from the half-edges on `stack`; returns the number of flips."""
     flips = 0
     while n_stack > 0 and flips < max_flips:
@@ -312,6 +321,8 @@ def _flip_pass(fv, fadj, ftw, falive, vu, vM, vface, vnode, nd, max_strain, stac
         if not _should_flip(fv, fadj, vu, vM, h, threshold):
             continue
         g = fadj[f, k] // 3
+        if fz >= 0 and _touches_frozen(fv, vnode, nd, fz, f, g):
+            continue
         if not _flip_keeps_world_strain(fv, vu, vnode, nd, f, k, g, fadj[f, k] % 3, max_strain):
             continue
         # boundary sides of f and g may be seam sides whose twin codes change with the flip
@@ -492,7 +503,7 @@ def _canonical(fadj, ftw, h):
 
 @nb.njit(cache=True)
 def split_pass(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, nd, npin, nnv, nalive, cnt, fdirty,
-               threshold, max_rounds, max_strain):
+               threshold, max_rounds, max_strain, fz):
     """Split every invalid edge, worst first, flipping around each split; repeat until none is invalid.
 
     Returns (status, splits, flips); status OUT_OF_CAPACITY asks the driver to grow and call again.
@@ -541,7 +552,7 @@ def split_pass(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, nd, npin, nn
                              h, cnt, fdirty, stack)
             splits += 1
             flips += _flip_pass(fv, fadj, ftw, falive, vu, vM, vface, vnode, nd, max_strain, stack, n_stack,
-                                threshold, 64, fdirty)
+                                threshold, 64, fdirty, fz)
     return 0, splits, flips
 
 
@@ -549,7 +560,7 @@ def split_pass(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, nd, npin, nn
 # collapses
 @nb.njit(cache=True)
 def _try_collapse(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv, nalive, h, a_first,
-                  aspect_min, max_s2, cos_corner, buf, buf2, fdirty, nd, max_strain):
+                  aspect_min, max_s2, cos_corner, buf, buf2, fdirty, nd, max_strain, fz):
     """Collapse the edge of half-edge h, removing its first vert (a_first) or its second; True on success."""
     f, k = h // 3, h % 3
     if a_first:
@@ -559,6 +570,8 @@ def _try_collapse(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv
     na = vnode[a]
     if npin[na] != -1 or nnv[na] != 1:
         return False  # pinned and seam nodes stay
+    if fz >= 0 and (nd[na, fz] > 0.0 or nd[vnode[b], fz] > 0.0):
+        return False  # frozen: a collapse here would make the cloth cross itself
     edge_boundary = fadj[f, k] < 0
     n, a_bnd, nxt, prv = _ring(fv, fadj, vface, a, buf)
     if n < 0:
@@ -685,7 +698,7 @@ def _try_collapse(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv
 
 @nb.njit(cache=True)
 def collapse_pass(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv, nalive, cnt, fdirty,
-                  aspect_min, max_size, cos_corner, threshold, max_rounds, nd, max_strain):
+                  aspect_min, max_size, cos_corner, threshold, max_rounds, nd, max_strain, fz):
     """Collapse short edges of dirty faces (shortest first), flipping after each; returns (collapses, flips)."""
     buf = np.empty(RING_MAX, dtype=np.int64)
     buf2 = np.empty(RING_MAX, dtype=np.int64)
@@ -726,11 +739,11 @@ def collapse_pass(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv
                 continue
             first = fv[h // 3, h % 3] == a
             ok = _try_collapse(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv, nalive, h,
-                               first, aspect_min, max_s2, cos_corner, buf, buf2, fdirty, nd, max_strain)
+                               first, aspect_min, max_s2, cos_corner, buf, buf2, fdirty, nd, max_strain, fz)
             if not ok:
                 ok = _try_collapse(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv, nalive,
                                    h, not first, aspect_min, max_s2, cos_corner, buf, buf2, fdirty, nd,
-                                   max_strain)
+                                   max_strain, fz)
             if not ok:
                 continue
             done += 1
@@ -744,7 +757,7 @@ def collapse_pass(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv
                         stack[n_stack] = 3 * buf[i] + s
                         n_stack += 1
             flips += _flip_pass(fv, fadj, ftw, falive, vu, vM, vface, vnode, nd, max_strain, stack, n_stack,
-                                threshold, 256, fdirty)
+                                threshold, 256, fdirty, fz)
         collapses += done
         if done == 0:
             break
@@ -752,7 +765,7 @@ def collapse_pass(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv
 
 
 @nb.njit(cache=True)
-def flip_all(fv, fadj, ftw, falive, vu, vM, vface, vnode, nd, max_strain, cnt, fdirty, threshold):
+def flip_all(fv, fadj, ftw, falive, vu, vM, vface, vnode, nd, max_strain, cnt, fdirty, threshold, fz):
     """Lawson flipping from every edge (bounded); returns the number of flips."""
     nf = cnt[0]
     stack = np.empty(3 * nf + 4096, dtype=np.int64)
@@ -763,7 +776,7 @@ def flip_all(fv, fadj, ftw, falive, vu, vM, vface, vnode, nd, max_strain, cnt, f
                 stack[n] = 3 * f + k
                 n += 1
     return _flip_pass(fv, fadj, ftw, falive, vu, vM, vface, vnode, nd, max_strain, stack, n, threshold,
-                      3 * nf + 64, fdirty)
+                      3 * nf + 64, fdirty, fz)
 
 
 # ---------------------------------------------------------------------------------------
@@ -875,26 +888,40 @@ class _Work:
 
 
 def remesh(mesh: Mesh, vert_M: np.ndarray, node_data: np.ndarray, node_handle: np.ndarray,
-           params: RemeshParams = RemeshParams()) -> RemeshResult:
+           params: RemeshParams = RemeshParams(), frozen: np.ndarray | None = None) -> RemeshResult:
     """Remesh `mesh` to the per-vert sizing `vert_M` (n_verts, 2, 2).
 
     `node_data` (n_nodes, D) holds everything per node that a split averages; its first six
     columns are position and velocity. `node_handle` (n_nodes,) is the handle id of each pinned
     node (-1 free): a node created between two nodes of one handle joins that handle.
+    `frozen` (n_nodes,) bool, optional: no flip or collapse touches these nodes, nor the nodes
+    a split makes next to them (splits still refine there: they do not move the surface).
     """
     vert_M = np.ascontiguousarray(vert_M, dtype=np.float64)
     if vert_M.shape != (mesh.n_verts, 2, 2):
         raise ValueError(f"vert_M must have shape ({mesh.n_verts}, 2, 2), got {vert_M.shape}")
     if node_data.shape[0] != mesh.n_nodes or node_data.shape[1] < 6:
         raise ValueError(f"node_data must have shape ({mesh.n_nodes}, >= 6), got {node_data.shape}")
-    w = _Work(mesh, vert_M, np.asarray(node_data, dtype=np.float64), np.asarray(node_handle, dtype=np.int64))
+    node_data = np.asarray(node_data, dtype=np.float64)
+    n_data = node_data.shape[1]
+    fz = -1
+    if frozen is not None:
+        frozen = np.asarray(frozen, dtype=bool)
+        if frozen.shape != (mesh.n_nodes,):
+            raise ValueError(f"frozen must have shape ({mesh.n_nodes},), got {frozen.shape}")
+        if frozen.any():  # carried as one more column: a split's mean is > 0 next to a frozen node
+            node_data = np.hstack([node_data, frozen[:, None].astype(np.float64)])
+            fz = n_data
+    w = _Work(mesh, vert_M, node_data, np.asarray(node_handle, dtype=np.int64))
     thr = params.flip_threshold
     ms = params.max_world_strain
-    flips = flip_all(w.fv, w.fadj, w.ftw, w.falive, w.vu, w.vM, w.vface, w.vnode, w.nd, ms, w.cnt, w.fdirty, thr)
+    flips = flip_all(w.fv, w.fadj, w.ftw, w.falive, w.vu, w.vM, w.vface, w.vnode, w.nd, ms, w.cnt, w.fdirty, thr,
+                     fz)
     splits = 0
     while True:
         status, s, fl = split_pass(w.fv, w.fadj, w.ftw, w.falive, w.vu, w.vM, w.vnode, w.vface, w.valive,
-                                   w.nd, w.npin, w.nnv, w.nalive, w.cnt, w.fdirty, thr, params.max_split_rounds, ms)
+                                   w.nd, w.npin, w.nnv, w.nalive, w.cnt, w.fdirty, thr, params.max_split_rounds, ms,
+                                   fz)
         splits += s
         flips += fl
         if status == OUT_OF_CAPACITY:
@@ -905,9 +932,10 @@ def remesh(mesh: Mesh, vert_M: np.ndarray, node_data: np.ndarray, node_handle: n
     collapses, fl = collapse_pass(w.fv, w.fadj, w.ftw, w.falive, w.vu, w.vM, w.vnode, w.vface, w.valive,
                                   w.npin, w.nnv, w.nalive, w.cnt, w.fdirty, params.aspect_min,
                                   params.collapse_max_size, math.cos(params.corner_angle), thr,
-                                  params.max_collapse_rounds, w.nd, ms)
+                                  params.max_collapse_rounds, w.nd, ms, fz)
     flips += fl
     out, nd, nh, origin, vM = w.to_mesh(mesh.density)
+    nd = nd[:, :n_data]
     return RemeshResult(mesh=out, node_data=nd, node_handle=nh, node_origin=origin, vert_M=vM, splits=int(splits),
                         collapses=int(collapses), flips=int(flips),
                         changed=bool(splits or collapses or flips))

@@ -128,3 +128,37 @@ def test_long_adaptive_runs_stay_finite_and_outside_obstacles(scene, overrides):
             assert d.min() >= sim.scene.thickness - CONTACT_SLACK
             assert x[:, 2].min() >= sim.scene.thickness - CONTACT_SLACK
     assert sim.mesh.n_faces > 0
+
+
+def test_crossing_guard_redoes_a_remesh_that_makes_the_cloth_cross_itself():
+    """Two wavy sheets 1 mm apart; the upper one is held (a handle: never collapsed), the lower
+    one is coarsened. Its collapses cut the troughs' corners, through the upper sheet: the plain
+    remesh crosses; the guard redoes it with the crossings' nodes frozen and leaves none, while
+    the lower sheet still coarsens where that crosses nothing."""
+    from cloth.adaptive import AdaptiveRemesher
+    from cloth.mesh import grid_mesh, merge_meshes
+    from cloth.remesh import remesh
+    from cloth.untangle import find_intersections
+
+    sheets = [grid_mesh(0.4, 0.4, 16, 16) for _ in range(2)]
+    for m, dz in zip(sheets, (0.0, 0.001)):
+        m.node_x[:, 2] = 0.005 * np.sin(2 * np.pi * m.node_x[:, 0] / 0.2) + dz
+    mesh = merge_meshes(sheets)
+    mesh.update_rest_data(0.12)
+    n_lower = sheets[0].n_nodes
+    vert_M = np.tile(np.eye(2) / 0.2 ** 2, (mesh.n_verts, 1, 1))
+    data = np.hstack([mesh.node_x, mesh.node_v])
+    handle = np.full(mesh.n_nodes, -1)
+    handle[n_lower:] = 0
+
+    def crossings(m):
+        return len(find_intersections(m.face_nodes, m.node_x)[0])
+
+    assert crossings(mesh) == 0
+    plain = remesh(mesh, vert_M, data, handle)
+    assert crossings(plain.mesh) > 0
+    stats = {}
+    guarded = AdaptiveRemesher()._avoid_crossings(mesh, vert_M, data, handle, plain, stats)
+    assert crossings(guarded.mesh) == 0
+    assert stats["remesh_guard_rounds"] >= 1 and stats["remesh_frozen_nodes"] > 0
+    assert guarded.collapses > 0 and guarded.mesh.n_faces < mesh.n_faces

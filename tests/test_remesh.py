@@ -141,7 +141,7 @@ def test_random_operation_sequences_keep_every_invariant(seed, make):
         else:
             ok = rm._try_collapse(w.fv, w.fadj, w.ftw, w.falive, w.vu, w.vM, w.vnode, w.vface, w.valive,
                                   w.npin, w.nnv, w.nalive, h, bool(rng.integers(2)), 0.05, 4.0,
-                                  math.cos(0.5), buf, buf2, w.fdirty, w.nd, np.inf)
+                                  math.cos(0.5), buf, buf2, w.fdirty, w.nd, np.inf, -1)
         done[op] += bool(ok)
         out = check_work(w)
         assert out.face_area.sum() == pytest.approx(area0, rel=1e-12), f"material area changed by a {op}"
@@ -374,3 +374,30 @@ def test_face_to_vert_transfer_is_area_weighted():
     vM = face_to_vert_sizing(mesh, face_M)
     shared = np.intersect1d(mesh.face_verts[0], mesh.face_verts[1])
     np.testing.assert_allclose(vM[shared], np.tile(2 * np.eye(2), (2, 1, 1)))
+
+
+def test_frozen_nodes_are_neither_collapsed_nor_flipped_around():
+    """`frozen` nodes (the crossing guard's) survive a coarsening remesh; faces whose three nodes
+    are all frozen keep their exact node triples (no flip or collapse touched them); with every
+    node frozen only splits happen; the extra column does not leak into node_data."""
+    rng = np.random.default_rng(5)
+    mesh = grid_mesh(1.0, 1.0, 12, 12)
+    mesh.node_x[:, 2] = 0.01 * rng.standard_normal(mesh.n_nodes)  # non-planar, so flips matter
+    data = node_data(mesh)
+    frozen = mesh.node_x[:, 0] < 0.5
+    coarse = remesh(mesh, iso(mesh, 0.4), data, free(mesh))
+    assert coarse.collapses > 0
+    r = remesh(mesh, iso(mesh, 0.4), data, free(mesh), frozen=frozen)
+    assert r.node_data.shape[1] == data.shape[1]
+    kept = set(r.node_origin[r.node_origin >= 0].tolist())
+    assert set(np.flatnonzero(frozen).tolist()) <= kept, "a frozen node was collapsed"
+    inside = frozen[mesh.face_nodes].all(axis=1)
+    before = {tuple(sorted(t)) for t in mesh.face_nodes[inside].tolist()}
+    origin = r.node_origin[r.mesh.face_nodes]
+    after = {tuple(sorted(t)) for t in origin[(origin >= 0).all(axis=1)].tolist()}
+    assert before <= after, "a face among frozen nodes was flipped or collapsed"
+    assert r.mesh.n_faces > coarse.mesh.n_faces  # the free half still coarsened, the frozen half did not
+    fine = remesh(mesh, iso(mesh, 0.03), data, free(mesh), frozen=np.ones(mesh.n_nodes, bool))
+    assert fine.splits > 0 and fine.collapses == 0 and fine.flips == 0
+    with pytest.raises(ValueError, match="frozen"):
+        remesh(mesh, iso(mesh, 0.4), data, free(mesh), frozen=frozen[:-1])

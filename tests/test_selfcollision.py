@@ -307,3 +307,25 @@ def test_collision_response_cannot_make_a_node_faster_than_the_guard():
     v_after = float(np.sqrt(np.max(np.einsum("ij,ij->i", mesh.node_v, mesh.node_v))))
     assert v_after <= v_before + sim.self_collision.thickness / h + 1e-9
     assert stats["self_ccd_hits"] + stats["self_proximity"] > 0  # the layers did collide
+
+
+def test_remesh_motion_is_made_collision_free():
+    """The push-out and pop filter after a remesh move nodes without looking at other layers;
+    collision_free_motion treats that displacement like a step's motion: the upper sheet, moved
+    down through the lower one, ends above it with no crossing, and velocities are untouched."""
+    from types import SimpleNamespace
+
+    from cloth.adaptive import collision_free_motion
+    mesh, n_lower = two_sheets()
+    x_from = mesh.node_x.copy()
+    upper = np.arange(n_lower, mesh.n_nodes)
+    centre = x_from[upper, :2].mean(axis=0)
+    bump = upper[np.linalg.norm(x_from[upper, :2] - centre, axis=1) < 0.07]  # the middle of the upper sheet
+    mesh.node_x[bump, 2] -= 0.03
+    assert len(find_intersections(mesh.face_nodes, mesh.node_x)[0]) > 0  # the motion alone crosses
+    v = mesh.node_v.copy()
+    hits = collision_free_motion(SimpleNamespace(mesh=mesh, self_collision=SelfCollisionParams(THICKNESS)), x_from)
+    assert hits > 0
+    assert len(find_intersections(mesh.face_nodes, mesh.node_x)[0]) == 0
+    assert np.all(mesh.node_x[bump, 2] > mesh.node_x[:n_lower, 2].min())  # the bump stayed above
+    assert np.array_equal(mesh.node_v, v)
