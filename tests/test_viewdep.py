@@ -95,7 +95,9 @@ def test_anticipation_refines_before_a_jump_cut():
     # conf/camera/sheet_cut.yaml: the +x half, then at frame 30 (1.2 s) a jump cut to the -x half
     worst = {}
     for anticipation in (True, False):
-        sim = _sim("mode=viewdep", "camera=sheet_cut", MARGIN, f"mode.view.anticipation={str(anticipation).lower()}")
+        # the contact floor off: on the sphere it would keep the unseen side at size_max either way
+        sim = _sim("mode=viewdep", "camera=sheet_cut", MARGIN, f"mode.view.anticipation={str(anticipation).lower()}",
+                   "mode.view.contact_size=null")
         assert sim.scene.camera.cuts == (CUT_FRAME * sim.scene.frame_time,)
         while sim.frame < CUT_FRAME:
             sim.advance_frame()
@@ -185,3 +187,33 @@ def test_bad_camera_config_is_named():
         _sim("mode=viewdep", "camera=sheet_half", "camera.type=dolly")
     with pytest.raises(ConfigError, match="camera"):
         _sim("mode=viewdep", "camera=sheet_half", "camera.camera.fov_y_deg=200")
+
+
+def test_contact_floor_keeps_faces_near_obstacles_no_coarser_than_contact_size():
+    """With nu_out = 0.001 the unseen half would coarsen far past size_max; faces within
+    contact_distance of the sphere or the ground keep eigenvalues >= contact_size^-2 (edges no
+    longer than contact_size), faces farther away get exactly the paper's field, and
+    contact_size = null switches the floor off."""
+    import dataclasses
+
+    from cloth.view import ViewError
+    from cloth.viewdep import ViewParams
+    sim = _sim("mode=viewdep", "camera=sheet_half", "mode.view.nu_out=0.001", MARGIN)
+    for _ in range(14):  # the sheet lands on the sphere
+        sim.advance_frame()
+    rem = sim.remesher
+    M_floor = rem.face_sizing(sim)
+    view = rem.view
+    rem.view = dataclasses.replace(view, contact_size=None)
+    M_off = rem.face_sizing(sim)
+    rem.view = view
+    c, _ = face_geometry(sim.mesh)
+    near = sim.obstacle_set.query(c)[0] < view.contact_distance
+    floor = 1.0 / view.contact_size ** 2
+    assert near.any() and (~near).any()
+    assert np.all(np.linalg.eigvalsh(M_floor[near]) >= floor * (1 - 1e-9))
+    np.testing.assert_array_equal(M_floor[~near], M_off[~near])
+    assert np.any(np.linalg.eigvalsh(M_off[near])[:, 0] < floor)  # the floor did something
+    for bad in ({"contact_size": 0.0}, {"contact_distance": -1.0}):
+        with pytest.raises(ViewError, match="contact"):
+            ViewParams(**bad)
