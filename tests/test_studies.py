@@ -137,3 +137,25 @@ def test_slurm_preset_selects_the_submitit_slurm_launcher():
 def test_ray_launcher_on_a_local_ray_instance(tmp_path):
     sweep = _multirun(tmp_path, "cluster=ray", "seed=0,1", env={"RAY_NUM_CPUS": "2"})
     assert len(_completed(sweep)) == 2
+
+
+def test_main_job_warms_the_kernel_cache_before_any_study(tmp_path, monkeypatch):
+    """experiments.paper first runs its two-frame warm-up (a config that composes), then each
+    study's multirun, then the figures; a failing study makes the job exit non-zero."""
+    from experiments import paper
+    calls = []
+
+    def fake_call(cmd, **kwargs):
+        calls.append(cmd)
+        return 1 if "+experiment=accuracy" in cmd else 0
+
+    monkeypatch.setattr(paper.subprocess, "call", fake_call)
+    rc = paper.main(["--out", str(tmp_path), "--studies", "table1", "accuracy"])
+    assert rc == 1
+    assert calls[0][:3] == paper.WARMUP[:3] and calls[0][-1] == f"hydra.run.dir={tmp_path / 'warmup'}"
+    assert "+experiment=table1" in calls[1] and "+experiment=accuracy" in calls[2]
+    assert calls[3][2] == "paper_figures"
+    overrides = [a for a in paper.WARMUP[3:]]
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        cfg = compose(config_name="config", overrides=overrides)
+    assert cfg.scene.name == "karate" and cfg.mode.name == "viewdep"
