@@ -30,6 +30,9 @@ from numba import njit, prange
 
 from .membrane import project_psd
 
+# `project` value of the element kernels for the Gauss-Newton Hessian (see bending_element_into).
+GAUSS_NEWTON = 2
+
 # A hinge whose y^2 + z^2 = |n_A|^2 |n_B|^2 falls below this (m^8) has a collapsed face in world
 # space: its angle is undefined and it exerts no force.
 DEGENERATE_NORMAL2 = 1e-40
@@ -169,7 +172,12 @@ def angle_derivatives(a, b, c):
 
 @njit(cache=True)
 def bending_element_into(x0, x1, x2, x3, rest_theta, weight, project, grad, hess):
-    """Hinge energy; writes the gradient (12,) and Hessian (12, 12) w.r.t. (x0..x3), returns W."""
+    """Hinge energy; writes the gradient (12,) and Hessian (12, 12) w.r.t. (x0..x3), returns W.
+
+    `project`: False, the exact Hessian; True, projected to positive semi-definite where it is
+    not; GAUSS_NEWTON (2), only the term w u u^T (u = d theta / dx), positive semi-definite by
+    construction and about 8x cheaper than the projection (ARCSim's bending Hessian).
+    """
     theta, u, H, ok = angle_derivatives(x1 - x0, x2 - x0, x3 - x0)
     for i in range(12):
         grad[i] = 0.0
@@ -179,9 +187,12 @@ def bending_element_into(x0, x1, x2, x3, rest_theta, weight, project, grad, hess
         return 0.0
     d = theta - rest_theta
     g9 = weight * d * u
-    H9 = weight * (np.outer(u, u) + d * H)
-    if project and d != 0.0 and not _is_psd(H9):
-        project_psd(H9)
+    if project == GAUSS_NEWTON:
+        H9 = weight * np.outer(u, u)  # positive semi-definite by construction, no eigensolve
+    else:
+        H9 = weight * (np.outer(u, u) + d * H)
+        if project and d != 0.0 and not _is_psd(H9):
+            project_psd(H9)
     # (a, b, c) = (x1 - x0, x2 - x0, x3 - x0): x0 gets minus the sum, x1..x3 the blocks
     for k in range(3):
         for i in range(3):

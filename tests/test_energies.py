@@ -219,3 +219,22 @@ def test_batch_kernels_match_single_elements():
     for k in range(E):
         ek, gk, Hk = bending_element(*(x[i] for i in st[k]), rest[k], w[k], True)
         assert e[k] == ek and np.array_equal(g[k], gk) and np.array_equal(H[k], Hk)
+
+
+@pytest.mark.parametrize("case", range(8))
+def test_bending_gauss_newton_hessian_is_w_grad_theta_outer_and_psd(case):
+    """project=GAUSS_NEWTON: the same energy and gradient; the Hessian is w (dtheta/dx)(dtheta/dx)^T,
+    with dtheta/dx = gradient / (w (theta - rest)) from the exact gradient, so it is positive
+    semi-definite, and it equals the exact Hessian at rest (theta = rest, where d theta term is 0)."""
+    from cloth.bending import GAUSS_NEWTON, dihedral_angle
+    x = list(_hinges())[case]
+    w, rest = 2.0, 0.3
+    e, g, H = _bending(x, rest, w, False)
+    e_gn, g_gn, H_gn = _bending(x, rest, w, GAUSS_NEWTON)
+    assert e_gn == e and np.array_equal(g_gn, g)
+    d = dihedral_angle(x[0:3], x[3:6], x[6:9], x[9:12]) - rest
+    u = g / (w * d)
+    assert _rel(H_gn, w * np.outer(u, u)) < FD_REL_TOL
+    assert np.linalg.eigvalsh(H_gn).min() >= -ROUNDOFF * np.abs(H_gn).max()
+    at_rest = _bending(x, rest + d, w, GAUSS_NEWTON)[2]
+    assert _rel(at_rest, _bending(x, rest + d, w, False)[2]) < FD_REL_TOL
