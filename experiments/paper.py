@@ -14,7 +14,7 @@ frame includes compilation.
 A study that fails (a run that diverges, a killed process) does not stop the others: its run
 folders stay as written, the aggregation reports the broken ones by name and skips them, and the
 job exits non-zero at the end. At scale=small the default studies (table1, accuracy) take about
-22 minutes on 2 cores; at scale=paper expect a day or a cluster (README: Studies, Scale).
+23 minutes on 2 cores; at scale=paper expect a day or a cluster (README: Studies, Scale).
 """
 
 from __future__ import annotations
