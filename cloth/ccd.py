@@ -32,6 +32,33 @@ def _dot(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
+@njit(cache=True, inline="always")
+def region_weights(d1, d2, d3, d4, d5, d6):
+    """Barycentric weights of the closest point on a triangle (a, b, c) to p, from Ericson's
+    dot products d1 = ab.ap, d2 = ac.ap, d3 = ab.bp, d4 = ac.bp, d5 = ab.cp, d6 = ac.cp, when
+    p is not in vertex a's region (d1 > 0 or d2 > 0); the triangle must not be degenerate."""
+    vc = d1 * d4 - d3 * d2
+    vb = d5 * d2 - d1 * d6
+    va = d3 * d6 - d5 * d4
+    if d3 >= 0.0 and d4 <= d3:
+        return 0.0, 1.0, 0.0
+    if d6 >= 0.0 and d5 <= d6:
+        return 0.0, 0.0, 1.0
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        v = d1 / (d1 - d3)
+        return 1.0 - v, v, 0.0
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        w = d2 / (d2 - d6)
+        return 1.0 - w, 0.0, w
+    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        return 0.0, 1.0 - w, w
+    den = 1.0 / (va + vb + vc)
+    w1 = vb * den
+    w2 = vc * den
+    return 1.0 - w1 - w2, w1, w2
+
+
 @njit(cache=True)
 def point_triangle_closest(p, a, b, c):
     """Distance from p to the closed triangle abc and the barycentric weights (w0, w1, w2) of
@@ -64,27 +91,7 @@ def point_triangle_closest(p, a, b, c):
         d3, d4 = _dot(ab, bp), _dot(ac, bp)
         cp = p - c
         d5, d6 = _dot(ab, cp), _dot(ac, cp)
-        vc = d1 * d4 - d3 * d2
-        vb = d5 * d2 - d1 * d6
-        va = d3 * d6 - d5 * d4
-        if d3 >= 0.0 and d4 <= d3:
-            w0, w1, w2 = 0.0, 1.0, 0.0
-        elif d6 >= 0.0 and d5 <= d6:
-            w0, w1, w2 = 0.0, 0.0, 1.0
-        elif vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-            v = d1 / (d1 - d3)
-            w0, w1, w2 = 1.0 - v, v, 0.0
-        elif vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-            w = d2 / (d2 - d6)
-            w0, w1, w2 = 1.0 - w, 0.0, w
-        elif va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
-            w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-            w0, w1, w2 = 0.0, 1.0 - w, w
-        else:
-            den = 1.0 / (va + vb + vc)
-            w1 = vb * den
-            w2 = vc * den
-            w0 = 1.0 - w1 - w2
+        w0, w1, w2 = region_weights(d1, d2, d3, d4, d5, d6)
     q = w0 * a + w1 * b + w2 * c
     d = p - q
     return np.sqrt(_dot(d, d)), w0, w1, w2

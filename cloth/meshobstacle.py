@@ -44,7 +44,7 @@ import numpy as np
 from numba import njit
 
 from .bvh import _build as _build_box_tree
-from .ccd import point_triangle_closest
+from .ccd import point_triangle_closest, region_weights
 
 VELOCITY_STEP = 1e-4  # s, central difference of a callable's positions (error O(h^2 x''') m/s)
 REBUILD_GROWTH = 1.5  # rebuild the tree when refitting has grown its boxes' summed extents by this factor
@@ -123,27 +123,7 @@ def _closest_on_triangle(p, x, ia, ib, ic):
         cpx, cpy, cpz = apx - acx, apy - acy, apz - acz
         d5 = abx * cpx + aby * cpy + abz * cpz
         d6 = acx * cpx + acy * cpy + acz * cpz
-        vc = d1 * d4 - d3 * d2
-        vb = d5 * d2 - d1 * d6
-        va = d3 * d6 - d5 * d4
-        if d3 >= 0.0 and d4 <= d3:
-            w0, w1, w2 = 0.0, 1.0, 0.0
-        elif d6 >= 0.0 and d5 <= d6:
-            w0, w1, w2 = 0.0, 0.0, 1.0
-        elif vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-            v = d1 / (d1 - d3)
-            w0, w1, w2 = 1.0 - v, v, 0.0
-        elif vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-            w = d2 / (d2 - d6)
-            w0, w1, w2 = 1.0 - w, 0.0, w
-        elif va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
-            w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-            w0, w1, w2 = 0.0, 1.0 - w, w
-        else:
-            den = 1.0 / (va + vb + vc)
-            w1 = vb * den
-            w2 = vc * den
-            w0 = 1.0 - w1 - w2
+        w0, w1, w2 = region_weights(d1, d2, d3, d4, d5, d6)
     rx = apx - w1 * abx - w2 * acx
     ry = apy - w1 * aby - w2 * acy
     rz = apz - w1 * abz - w2 * acz
