@@ -17,6 +17,8 @@ Each case is a scene and mode with a few overrides:
 - orbit_1s: a camera orbiting the cloth once per second;
 - karate_2x: the karate motion at twice its speed (layered skirts with self-collision);
 - crushed_sheet: a strip collapsed into folds and pressed between two planes (dense self-contact);
+- crushed_sheet_fixed: the same on a fixed mesh of light, small faces (48 cells along the strip
+  at scale=small, 96 at scale=paper), where a dense pile once diverged (cloth.membrane);
 - thin_triangles: layered sheets made of very thin input triangles (cells 12x longer than wide).
 """
 
@@ -79,6 +81,8 @@ CASES = [
          speed_bound_m_s=BODY_SPEED_M_S, frames_small=30, what="karate at twice its speed"),
     Case("crushed_sheet", ["scene=crushed_sheet", "mode=adaptive"], frames_small=40,
          what="strip folded and pressed between two planes"),
+    Case("crushed_sheet_fixed", ["scene=crushed_sheet", "mode=nonadaptive", "scene.scales.small.resolution=48"],
+         frames_small=40, what="crushed sheet on a fixed mesh of light, small faces"),
     Case("thin_triangles", SHEETS + ["mode=adaptive", "scene.params.cell_aspect=12"],
          what="input mesh of very thin triangles"),
 ]

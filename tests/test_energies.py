@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from cloth.bending import bending_element, bending_elements, dihedral_angle, hinge_weight
-from cloth.membrane import (SOFTENING_STRAIN, deformation_gradient, face_green_strain, green_strain,
+from cloth.membrane import (ABSOLUTE_STRAIN, deformation_gradient, face_green_strain, green_strain,
                             lame_parameters, membrane_elements, stvk_element)
 
 # Central differences with step 1e-6 on O(1) coordinates have truncation error ~1e-12 and
@@ -145,20 +145,20 @@ def test_projected_hessians_are_psd_and_exact_where_already_psd():
     assert n_indefinite > 0  # the cases do exercise the projection
 
 
-def test_membrane_projection_clamps_and_takes_absolute_values_past_the_softening_point():
-    """Negative eigenvalues -> 0 under ordinary compression, -> |w| where a principal stretch is
-    below 1/sqrt(3) (cloth.membrane.SOFTENING_STRAIN)."""
+def test_membrane_projection_clamps_mild_and_takes_absolute_values_of_strong_compression():
+    """Negative eigenvalues -> 0 under mild compression, -> |w| where E's smallest eigenvalue is
+    below cloth.membrane.ABSOLUTE_STRAIN (a principal stretch below 0.89)."""
     u, B, A = _rest_triangle(5)
     x0 = np.column_stack([u, np.zeros(3)])
     seen = set()
-    for squeeze in (0.8, 0.65, 0.5, 0.3):  # stretch along x; 0.5 and 0.3 are past 1/sqrt(3) = 0.577
+    for squeeze in (0.95, 0.92, 0.8, 0.5):  # stretch along x; 0.8 and 0.5 are below 0.89
         x = (x0 * [squeeze, 1.0, 1] + 0.01 * np.random.default_rng(1).standard_normal((3, 3))).reshape(-1)
         H = _membrane(x, B, A)[2]
         Hp = _membrane(x, B, A, True)[2]
         w, V = np.linalg.eigh(H)
         assert w.min() < 0
         E = green_strain(deformation_gradient(x[0:3], x[3:6], x[6:9], B))
-        soft = bool(np.linalg.eigvalsh(E).min() < SOFTENING_STRAIN)
+        soft = bool(np.linalg.eigvalsh(E).min() < ABSOLUTE_STRAIN)
         seen.add(soft)
         expected = (V * (np.abs(w) if soft else np.maximum(w, 0.0))) @ V.T
         assert np.allclose(Hp, expected, atol=1e-9 * np.abs(H).max())

@@ -15,6 +15,7 @@ QUALITY_MIN. The cases:
 - orbit_1s: viewdep, the camera circles the sheets once per second;
 - karate_2x: karate in layered skirts at twice its speed, adaptive;
 - crushed_sheet: a strip folds onto itself and a plate presses the pile to 4 cm, adaptive;
+- crushed_sheet_fixed: the same, nonadaptive, 48 cells along the strip (1,440 faces);
 - thin_triangles: layered sheets from an input grid of cells 12x longer than wide, adaptive.
 
 The larger versions (scale=paper, 100 frames) are `python -m experiments.stability`.
