@@ -45,6 +45,7 @@ from numba import njit
 
 from .bvh import _build as _build_box_tree
 from .ccd import point_triangle_closest, region_weights
+from .obstacles import capsule_tessellation
 
 VELOCITY_STEP = 1e-4  # s, central difference of a callable's positions (error O(h^2 x''') m/s)
 REBUILD_GROWTH = 1.5  # rebuild the tree when refitting has grown its boxes' summed extents by this factor
@@ -604,41 +605,6 @@ def icosphere(radius: float = 1.0, subdivisions: int = 2, center=(0.0, 0.0, 0.0)
     m = trimesh.creation.icosphere(subdivisions=int(subdivisions), radius=float(radius))
     return np.asarray(m.vertices, dtype=np.float64) + np.asarray(center, dtype=np.float64), \
         np.asarray(m.faces, dtype=np.int64)
-
-
-def capsule_tessellation(a, b, radius: float, segments: int = 12):
-    """(vertices, faces) of a closed capsule around segment ab: `segments` around the axis,
-    max(2, segments // 4) rings per hemispherical cap, single vertices at the poles, outward
-    wound. Every vertex lies on the capsule (the facets are inside it, by at most about
-    radius * (1 - cos(pi / segments)))."""
-    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
-    n = max(int(segments), 3)
-    rings = max(2, n // 4)
-    axis = b - a
-    length = np.linalg.norm(axis)
-    w = axis / length if length > 0 else np.array([0.0, 0.0, 1.0])
-    u = np.cross(w, [1.0, 0.0, 0.0] if abs(w[0]) < 0.9 else [0.0, 1.0, 0.0])
-    u /= np.linalg.norm(u)
-    v = np.cross(w, u)
-    phi = 2 * np.pi * np.arange(n) / n
-    around = np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v  # (n, 3)
-    verts = [b + radius * w]  # pole at b
-    lat = np.linspace(0, np.pi / 2, rings + 1)[1:]  # from the b pole down to the equator
-    for th in lat:
-        verts.extend(b + radius * (np.cos(th) * w + np.sin(th) * around))
-    for th in lat[::-1]:  # equator at a, then up to the a pole
-        verts.extend(a + radius * (-np.cos(th) * w + np.sin(th) * around))
-    verts.append(a - radius * w)
-    verts = np.asarray(verts)
-    n_rings = 2 * rings
-    ring = lambda r, j: 1 + r * n + (j % n)  # noqa: E731
-    faces = [[0, ring(0, j), ring(0, j + 1)] for j in range(n)]
-    for r in range(n_rings - 1):
-        for j in range(n):
-            faces += [[ring(r, j), ring(r + 1, j), ring(r + 1, j + 1)], [ring(r, j), ring(r + 1, j + 1), ring(r, j + 1)]]
-    last = len(verts) - 1
-    faces += [[last, ring(n_rings - 1, j + 1), ring(n_rings - 1, j)] for j in range(n)]
-    return verts, np.asarray(faces, dtype=np.int64)
 
 
 def moving_sphere_keyframes(radius: float, subdivisions: int, centers) -> tuple[np.ndarray, np.ndarray]:

@@ -261,7 +261,7 @@ class CapsuleUnion(Obstacle):
     def to_mesh(self, resolution=16):
         verts, faces = [], []
         for (a, b), r in zip(self.ends, self.radii):
-            v, f = _capsule_mesh(a, b, r, resolution)
+            v, f = capsule_tessellation(a, b, r, resolution)
             faces.append(f + sum(len(x) for x in verts))
             verts.append(v)
         return np.vstack(verts), np.vstack(faces)
@@ -282,28 +282,39 @@ class Capsule(CapsuleUnion):
         super().__init__(np.stack([np.asarray(a, float), np.asarray(b, float)])[None], [radius], motion, name)
 
 
-def _capsule_mesh(a, b, r, res):
-    """A UV-sphere split at its equator, the halves placed at the capsule's two ends."""
+def capsule_tessellation(a, b, radius: float, segments: int = 12):
+    """(vertices, faces) of a closed capsule around segment ab: `segments` around the axis,
+    max(2, segments // 4) rings per hemispherical cap, single vertices at the poles, outward
+    wound. Every vertex lies on the capsule (the facets are inside it, by at most about
+    radius * (1 - cos(pi / segments)))."""
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    n = max(int(segments), 3)
+    rings = max(2, n // 4)
     axis = b - a
     length = np.linalg.norm(axis)
     w = axis / length if length > 0 else np.array([0.0, 0.0, 1.0])
     u = np.cross(w, [1.0, 0.0, 0.0] if abs(w[0]) < 0.9 else [0.0, 1.0, 0.0])
     u /= np.linalg.norm(u)
     v = np.cross(w, u)
-    n_lat = max(res // 2, 2) * 2
-    th = np.linspace(0, np.pi, n_lat + 1)  # from the b pole (theta = 0) to the a pole
-    ph = np.linspace(0, 2 * np.pi, res, endpoint=False)
-    T, P = np.meshgrid(th, ph, indexing="ij")
-    dirs = (np.cos(T)[..., None] * w + np.sin(T)[..., None] * (np.cos(P)[..., None] * u + np.sin(P)[..., None] * v))
-    centre = np.where((T <= np.pi / 2)[..., None], b, a)
-    pts = (centre + r * dirs).reshape(-1, 3)
-    faces = []
-    for i in range(n_lat):
-        for j in range(res):
-            p00, p01 = i * res + j, i * res + (j + 1) % res
-            p10, p11 = (i + 1) * res + j, (i + 1) * res + (j + 1) % res
-            faces += [[p00, p10, p11], [p00, p11, p01]]
-    return pts, np.asarray(faces)
+    phi = 2 * np.pi * np.arange(n) / n
+    around = np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v  # (n, 3)
+    verts = [b + radius * w]  # pole at b
+    lat = np.linspace(0, np.pi / 2, rings + 1)[1:]  # from the b pole down to the equator
+    for th in lat:
+        verts.extend(b + radius * (np.cos(th) * w + np.sin(th) * around))
+    for th in lat[::-1]:  # equator at a, then up to the a pole
+        verts.extend(a + radius * (-np.cos(th) * w + np.sin(th) * around))
+    verts.append(a - radius * w)
+    verts = np.asarray(verts)
+    n_rings = 2 * rings
+    ring = lambda r, j: 1 + r * n + (j % n)  # noqa: E731
+    faces = [[0, ring(0, j), ring(0, j + 1)] for j in range(n)]
+    for r in range(n_rings - 1):
+        for j in range(n):
+            faces += [[ring(r, j), ring(r + 1, j), ring(r + 1, j + 1)], [ring(r, j), ring(r + 1, j + 1), ring(r, j + 1)]]
+    last = len(verts) - 1
+    faces += [[last, ring(n_rings - 1, j + 1), ring(n_rings - 1, j)] for j in range(n)]
+    return verts, np.asarray(faces, dtype=np.int64)
 
 
 class ObstacleSet:

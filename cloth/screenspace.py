@@ -177,11 +177,11 @@ def merge_states(states: list) -> dict:
 def occluder_mesh(state: dict, resolution: int = OCCLUDER_RESOLUTION):
     """(vertices (M, 3), triangles (L, 3)) of every obstacle of a state: the capsules tessellated
     with `resolution` segments around, plus the stored tessellations of the other obstacles."""
-    from .obstacles import _capsule_mesh
+    from .obstacles import capsule_tessellation
 
     xs, fs, n = [state["obstacle_x"]], [state["obstacle_faces"]], state["obstacle_x"].shape[0]
     for (a, b), r in zip(state["capsule_ends"], state["capsule_radii"]):
-        v, f = _capsule_mesh(np.asarray(a, float), np.asarray(b, float), float(r), resolution)
+        v, f = capsule_tessellation(a, b, float(r), resolution)
         xs.append(v)
         fs.append(np.asarray(f, dtype=np.int64) + n)
         n += v.shape[0]
