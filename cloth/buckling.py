@@ -51,6 +51,8 @@ def filter_strain(E, alpha) -> np.ndarray:
     lambda^ = lambda where lambda >= 0 and alpha lambda where lambda < 0.
     """
     E = np.asarray(E, dtype=np.float64)
+    if E.ndim == 2:  # one strain
+        return filter_strain(E[None], np.reshape(alpha, -1)[:1])[0]
     alpha = np.broadcast_to(np.asarray(alpha, dtype=np.float64), E.shape[:1])
     lam, Q = np.linalg.eigh(E)
     lam = np.where(lam < 0, alpha[:, None] * lam, lam)

@@ -142,6 +142,26 @@ def test_anticipated_view_factor_hand_case_and_properties():
         anticipated_view_factor(r, taus + 1, T)
 
 
+def test_anticipated_view_factor_accepts_taus_built_from_the_frame_time():
+    # taus = k * dt with T = 3 dt: 3 * 0.1 overshoots 0.3 by a rounding error, which is no bad input
+    dt = 0.1
+    taus = np.arange(4) * dt
+    assert taus[-1] > 0.3  # the overshoot this test is about
+    nu = np.full((4, 2), 0.01)
+    nu[1, 1] = 1.0  # face 1 becomes visible one frame ahead: w = 1 - 1/3
+    out = anticipated_view_factor(nu, taus, 0.3)
+    assert np.allclose(out, [0.01, 2.0 / 3.0])
+    assert np.all(out >= 0)
+
+
+def test_scale_sizing_and_filter_strain_take_a_scalar_and_a_single_tensor():
+    from cloth.buckling import filter_strain
+    M = _random_spd(np.random.default_rng(3), 4)
+    assert np.allclose(scale_sizing(M, 0.5), 0.25 * M)
+    E = np.array([[0.1, 0.0], [0.0, -0.2]])
+    assert np.allclose(filter_strain(E, 0.5), [[0.1, 0.0], [0.0, -0.1]])
+
+
 # ---- eqs 2, 5-8 ----------------------------------------------------------------------------
 
 def _random_spd(rng, n):
