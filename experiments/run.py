@@ -152,5 +152,34 @@ def main(cfg: DictConfig) -> None:
             sys.exit(3)
 
 
+CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
+
+
+def unknown_choice(overrides: list[str], conf_dir: Path = CONF_DIR) -> str | None:
+    """The message for the first command-line choice of a config group that has no such config
+    (``scene=nope``, ``material=silk``), or None. Checked before Hydra composes, so that the
+    error is one line naming the key, not Hydra's report with its search path. Sweep values
+    (``material=cotton,denim``) are checked one by one; Hydra's sweep functions are left to it."""
+    import re
+
+    for arg in overrides:
+        m = re.fullmatch(r"[+~]{0,2}([A-Za-z_]\w*)=(.*)", arg)
+        if not m or not (conf_dir / m.group(1)).is_dir():
+            continue
+        group, value = m.groups()
+        for choice in value.split(","):
+            if not re.fullmatch(r"[\w.\-/]+", choice) or choice == "null":
+                continue
+            if not (conf_dir / group / f"{choice}.yaml").is_file():
+                known = sorted(str(p.relative_to(conf_dir / group).with_suffix(""))
+                               for p in (conf_dir / group).rglob("*.yaml"))
+                return f"{group}: unknown {group} {choice!r}; known: {', '.join(known)}"
+    return None
+
+
 if __name__ == "__main__":
+    problem = unknown_choice(sys.argv[1:])
+    if problem:
+        print(f"config error: {problem}", file=sys.stderr)
+        sys.exit(2)
     main()

@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 from hydra import compose, initialize_config_dir
@@ -78,6 +79,20 @@ def test_cli_config_error_is_one_clear_message(tmp_path):
     assert not (tmp_path / "run" / "frames.parquet").exists()
 
 
+@pytest.mark.parametrize("override, message", [
+    ("scene=nope", "config error: scene: unknown scene 'nope'; known: "),
+    ("material=silk", "config error: material: unknown material 'silk'; known: "),
+    ("mode=fast", "config error: mode: unknown mode 'fast'; known: "),
+])
+def test_cli_unknown_choice_is_one_clear_message(tmp_path, override, message):
+    out = _cli(tmp_path / "run", override)
+    assert out.returncode == 2
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(message), out.stderr
+    assert "cotton" in lines[0] or "sheet_on_sphere" in lines[0] or "adaptive" in lines[0]  # the choices
+    assert not (tmp_path / "run").exists()
+
+
 def test_cli_run_writes_a_complete_run_folder(tmp_path):
     out = _cli(tmp_path, "scene=sheet_on_sphere", "frames=3", "output.progress=false", "output.obj_every=3")
     assert out.returncode == 0, out.stderr
@@ -97,6 +112,26 @@ def test_cli_run_writes_a_complete_run_folder(tmp_path):
     assert (tmp_path / "recording.rrd").stat().st_size > 0
     assert (tmp_path / "config.yaml").exists() and (tmp_path / ".hydra" / "config.yaml").exists()
     assert (tmp_path / "obj" / "frame_00003.obj").exists()
+
+
+def test_non_finite_state_stops_the_run_at_its_frame_and_keeps_earlier_frames(tmp_path):
+    from cloth.runner import run
+    from cloth.simulation import SimulationDiverged
+
+    sim, _ = build_simulation(_cfg("scene=hanging_sheet", "output.rerun=false"))
+    step = sim.step
+
+    def poisoned_step(timings, stats):  # a NaN appears in the third frame
+        if sim.frame == 2:
+            sim.mesh.node_v[0, 0] = np.nan
+        step(timings, stats)
+
+    sim.step = poisoned_step
+    with pytest.raises(SimulationDiverged, match=r"frame 3: non-finite node positions or velocities"):
+        run(sim, 10, tmp_path)
+    assert list(pd.read_parquet(tmp_path / "frames.parquet")["frame"]) == [1, 2]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["status"] == "diverged" and "frame 3" in summary["message"]
 
 
 def test_diverging_run_names_the_frame_and_keeps_earlier_frames(tmp_path):

@@ -97,6 +97,15 @@ def test_non_manifold_edge_is_rejected():
         _mesh(u, faces)
 
 
+def test_inconsistent_orientation_across_a_seam_is_rejected():
+    # two panels, each counter-clockwise in material space, sewn so that both traverse the
+    # node edge 0 -> 1 in the same direction: one of them is flipped in the world
+    u = [[0, 0], [1, 0], [0, 1], [3, 0], [4, 0], [3, 1]]
+    with pytest.raises(MeshError, match=r"faces 0 and 1 have inconsistent orientation across the edge between nodes \[0, 1\]"):
+        Mesh(node_x=np.zeros((4, 3)), node_v=np.zeros((4, 3)), node_pinned=np.zeros(4, bool),
+             vert_u=u, vert_node=[0, 1, 2, 0, 1, 3], face_verts=[[0, 1, 2], [3, 4, 5]])
+
+
 def test_vert_to_missing_node_is_rejected():
     u = [[0, 0], [1, 0], [0, 1]]
     with pytest.raises(MeshError, match="maps to out-of-range node 5"):
