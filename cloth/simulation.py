@@ -108,6 +108,7 @@ class Simulation:
         self.frame = 0
         self.time = 0.0
         self.steps_taken = 0
+        self.intersections_pending = 0  # crossings the last untangling left (it runs again next frame)
         self.last_energy: dict = {}
         self.rebuild()
         if self.contact is not None:
@@ -218,7 +219,8 @@ class Simulation:
         stats["self_velocity_clamped"] = max(stats["self_velocity_clamped"], int(over.sum()))
         for key in ("self_proximity", "self_ccd_hits", "self_ccd_passes", "impact_zones", "impact_zone_rounds"):
             stats[key] = max(stats[key], s[key])
-        stats["self_collisions_left"] = s["self_collisions_left"]  # what the frame's last step left
+        # what the frame's worst step left (a later step may clear it; the record keeps the worst)
+        stats["self_collisions_left"] = max(stats["self_collisions_left"], s["self_collisions_left"])
 
     def _mesh_obstacles(self) -> list:
         """(positions, faces) of the triangle-mesh obstacles now (cloth.meshobstacle), [] if none."""
@@ -239,6 +241,7 @@ class Simulation:
         s = untangle(mesh.face_nodes, mesh.node_x, mesh.node_m, mesh.node_pinned, self.scene.thickness,
                      UNTANGLE_ITERATIONS, obstacles=self._mesh_obstacles())
         stats.update(s)
+        self.intersections_pending = int(s["intersections_left"])
 
     def _check(self, stats: dict) -> None:
         mesh = self.scene.mesh
@@ -261,7 +264,10 @@ class Simulation:
         stats.update(COLLISION_RECORD)
         if self.remesher is not None:
             changed = self.remesher.remesh(self, timings, stats)
-            if changed and (self.self_collision is not None or self.has_mesh_obstacles):
+            # untangle after a remesh that changed the mesh, and in every frame after one that
+            # left crossings (the record then says what is still left, not 0)
+            pending = getattr(self, "intersections_pending", 0) > 0
+            if (changed or pending) and (self.self_collision is not None or self.has_mesh_obstacles):
                 t0 = time.perf_counter()
                 self.untangle(stats)
                 timings["collisions"] += time.perf_counter() - t0
