@@ -1,9 +1,9 @@
 """Benchmark: time per implicit step of `sheet_on_sphere` at about 2k, 8k and 32k faces.
 
-    python -m experiments.benchmark [--resolutions 32 64 128] [--frames 12] [--warmup 8]
+    python -m experiments.benchmark [--resolutions 32 64 128] [--frames 6] [--warmup 12] [--out DIR]
 
 A benchmark, not a test: it prints ratios measured in one run and writes
-`results/benchmark/<timestamp>/steps.csv` (one row per resolution: seconds per step by phase,
+`<out>/<timestamp>/steps.csv` (default out: results/benchmark) (one row per resolution: seconds per step by phase,
 microseconds per face per step, the share of step time outside compiled kernels and the
 linear solver) and `summary.json` (the growth exponent of time with faces, from a log-log fit).
 
@@ -14,7 +14,6 @@ layer calls (the wrappers add about a microsecond per call, a few dozen calls pe
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from datetime import datetime
 from pathlib import Path
@@ -28,14 +27,15 @@ import cloth.contact
 import cloth.forces
 import cloth.integrator
 import cloth.linsolve
-from cloth.io.manifest import environment_manifest
+import cloth.obstacles
+from cloth.io.manifest import environment_manifest, write_json_atomic, write_text_atomic
 from cloth.material import Material
 from cloth.scenes import build_scene
 from cloth.simulation import PHASES, Simulation
 
 COTTON = dict(name="cotton", density=0.12, youngs_modulus=2.0e3, poisson_ratio=0.3,
               bending_stiffness=5e-6, damping_mass=0.05, damping_stiffness=2e-3)
-KERNEL_MODULES = (cloth.assembly, cloth.contact, cloth.forces, cloth.integrator, cloth.linsolve)
+KERNEL_MODULES = (cloth.assembly, cloth.contact, cloth.forces, cloth.integrator, cloth.linsolve, cloth.obstacles)
 
 
 class KernelClock:
@@ -114,10 +114,10 @@ def main(argv=None) -> None:
               f"CG {row['cg_iterations_per_step']:.0f} it; outside kernels+solver "
               f"{100 * row['share_outside_kernels_and_solver']:.1f}%)", flush=True)
     df = pd.DataFrame(rows)
-    df.to_csv(out_dir / "steps.csv", index=False)
+    write_text_atomic(out_dir / "steps.csv", df.to_csv(index=False))
     slope = float(np.polyfit(np.log(df["faces"]), np.log(df["s_per_step"]), 1)[0]) if len(df) > 1 else float("nan")
     summary = {"growth_exponent": slope, "rows": rows, "manifest": environment_manifest(0)}
-    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    write_json_atomic(out_dir / "summary.json", summary)
     print(f"time grows as faces^{slope:.2f} (1.00 = linear); results in {out_dir}")
 
 

@@ -9,7 +9,7 @@ a run that diverges is measured over the frames before it) and prints one row
 per run: faces, seconds per frame, seconds per frame in collisions (time_collisions_s: obstacle
 contact, self-collision within the steps and untangling after remeshes) and its share, with the
 growth of the collision time against the growth of faces between consecutive resolutions.
-Writes results/collision_cost/<timestamp>/table.csv.
+Writes <out>/<timestamp>/table.csv (--out, default results/collision_cost).
 """
 
 from __future__ import annotations
@@ -53,6 +53,7 @@ def main(argv=None) -> None:
     ap.add_argument("--frames", type=int, default=40)
     ap.add_argument("--resolutions", type=int, nargs="+", default=[24, 48, 96])
     ap.add_argument("--dancer-frames", type=int, default=60)
+    ap.add_argument("--out", type=Path, default=Path("results/collision_cost"))
     args = ap.parse_args(argv)
     rows = []
     for n in args.resolutions:
@@ -74,7 +75,7 @@ def main(argv=None) -> None:
     growth = np.log(crushed.collision_s_per_frame.to_numpy()[1:] / crushed.collision_s_per_frame.to_numpy()[:-1]) / \
         np.log(crushed.faces_mean.to_numpy()[1:] / crushed.faces_mean.to_numpy()[:-1])
     t["collision_time_exponent"] = [np.nan] + list(growth) + [np.nan] * (len(t) - len(crushed))
-    out = Path("results/collision_cost") / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+    out = args.out / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "table.csv", t.to_csv(index=False))
     print(t.to_string(index=False))

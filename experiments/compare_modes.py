@@ -7,7 +7,7 @@ issues, item 7 of each).
 The nonadaptive mesh of each scale preset has the edge length of the adaptive's finest edge
 (scene.scales.<scale>.sizing.size_min). Every mode sees the same camera (DEFAULT_CAMERAS, a camera
 that frames part of the cloth, or the scene's own camera work for the character scenes); only mode=viewdep uses it for sizing, the others for the records
-(faces in view). Writes results/compare_modes/<timestamp>/frames.parquet (every frame of every
+(faces in view). Writes <out>/<timestamp>/frames.parquet (--out, default results/compare_modes) (every frame of every
 run) and table.csv / table.md (faces, faces in view and time per frame, min/max/mean; speed-ups
 over nonadaptive and over adaptive; share of frame time per phase) and prints the table.
 """
@@ -77,6 +77,7 @@ def main(argv=None) -> None:
     ap.add_argument("--camera", nargs="*", default=[], metavar="SCENE=CAMERA",
                     help=f"camera per scene (conf/camera/); defaults: {DEFAULT_CAMERAS}")
     ap.add_argument("--warmup", type=int, default=1, help="frames excluded from the table (compilation)")
+    ap.add_argument("--out", type=Path, default=Path("results/compare_modes"))
     args = ap.parse_args(argv)
     if args.frames <= args.warmup:
         ap.error(f"--frames ({args.frames}) must exceed --warmup ({args.warmup})")
@@ -90,7 +91,7 @@ def main(argv=None) -> None:
     if crowds:
         ap.error("a crowd is one simulation per character: run it with python -m experiments.run "
                  "scene=multiple_dancers mode=<mode>")
-    out_dir = Path("results/compare_modes") / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+    out_dir = args.out / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     out_dir.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out_dir / "manifest.json", environment_manifest(0))
     runs = []

@@ -1,10 +1,10 @@
 """The stability suite: hard cases that must run to the end with every value finite, the kinetic
 energy bounded, no intersection left and no face below the quality bound.
 
-    python -m experiments.stability [--scale paper] [--frames 100] [--cases crushed_sheet karate_2x]
+    python -m experiments.stability [--scale paper] [--frames 100] [--cases crushed_sheet karate_2x] [--out DIR]
 
 runs the cases (the larger versions with --scale paper) and writes
-results/stability/<timestamp>/table.csv|md (one row per case: the checks and the figures behind
+<out>/<timestamp>/table.csv and table.md (default out: results/stability) (one row per case: the checks and the figures behind
 them). tests/stability/ runs the same cases at scale=small with fewer frames.
 
 Each case is a scene and mode with a few overrides:
@@ -151,8 +151,10 @@ def main(argv=None) -> None:
     ap.add_argument("--scale", default="paper")
     ap.add_argument("--frames", type=int, default=100)
     ap.add_argument("--cases", nargs="+", default=CASE_NAMES, choices=CASE_NAMES)
+    ap.add_argument("--out", type=Path, default=Path("results/stability"))
     args = ap.parse_args(argv)
-    out = Path("results/stability") / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+    from experiments.compare_modes import markdown
+    out = args.out / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     for name in args.cases:
@@ -160,6 +162,7 @@ def main(argv=None) -> None:
         print(f"{name:20s} ok={rows[-1]['ok']}  {rows[-1]['error']}", flush=True)
         table = pd.DataFrame(rows)  # written after every case: a killed run keeps what it had
         write_text_atomic(out / "table.csv", table.to_csv(index=False))
+        write_text_atomic(out / "table.md", markdown(table.drop(columns=["what"])))
     print(table.drop(columns=["what"]).to_string(index=False))
     print(f"\nresults in {out}")
 

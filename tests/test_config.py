@@ -147,3 +147,20 @@ def test_diverging_run_names_the_frame_and_keeps_earlier_frames(tmp_path):
     assert list(frames["frame"]) == list(range(1, frame))
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["status"] == "diverged" and f"frame {frame}" in summary["message"]
+
+
+def test_mode_defaults_are_arcsims_and_the_papers():
+    """conf/mode: ARCSim's remeshing defaults (issue 3) and the paper's view-dependent constants."""
+    ad = _cfg("mode=adaptive").mode
+    assert (ad.sizing.refine_angle, ad.sizing.refine_compression, ad.sizing.refine_velocity) == (0.3, 0.005, 0.5)
+    assert (ad.sizing.size_min, ad.sizing.size_max, ad.sizing.aspect_min, ad.sizing.combine) == (0.01, 0.2, 0.2, "max")
+    assert ad.buckling is None
+    vd = _cfg("mode=viewdep", "camera=sheet_half").mode
+    assert (vd.view.nu_front, vd.view.nu_back, vd.view.nu_out) == (1.0, 0.2, 0.01)
+    assert (vd.view.margin, vd.view.anticipation_frames, vd.view.anticipation) == (0.4, 5, True)
+    assert vd.sizing == ad.sizing and vd.remesh == ad.remesh  # viewdep is adaptive plus the view
+    sim, _ = build_simulation(_cfg("mode=viewdep", "camera=sheet_half"))
+    assert sim.buckling is not None and sim.buckling.k == 10 and sim.buckling.mode == "adaptive"
+    for scene in ("sheet_on_sphere", "flag"):  # the ARCSim-like scenes: frames of 0.04 s, 8 steps
+        s = build_simulation(_cfg(f"scene={scene}"))[0].scene
+        assert (s.frame_time, s.steps_per_frame) == (0.04, 8)

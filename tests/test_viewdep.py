@@ -218,3 +218,25 @@ def test_contact_floor_keeps_faces_near_obstacles_no_coarser_than_contact_size()
     for bad in ({"contact_size": 0.0}, {"contact_distance": -1.0}):
         with pytest.raises(ViewError, match="contact"):
             ViewParams(**bad)
+
+
+def test_the_recording_holds_the_camera_as_a_pinhole_with_its_pose(tmp_path):
+    """Read the .rrd back with Rerun's own tool: the camera's pose and pinhole, the cloth with
+    per-vertex colours (the view factor) and the obstacles are in it, on the frame timeline."""
+    import subprocess
+    import sys
+
+    from cloth.io.recorder import RerunRecorder
+    from cloth.runner import run
+    sim = _sim("mode=viewdep", "camera=sheet_half")
+    run(sim, 2, tmp_path, recorder=RerunRecorder(tmp_path / "recording.rrd", app_id="test"))
+    out = subprocess.run([sys.executable, "-m", "rerun", "rrd", "print", str(tmp_path / "recording.rrd")],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    chunks = [line for line in out.stdout.splitlines() if line.startswith("Chunk(")]
+    def columns(entity):
+        return " ".join(c.split("data columns:")[1] for c in chunks if f" - /{entity} - " in c)
+    assert "Pinhole:image_from_camera" in columns("world/camera") and "Pinhole:resolution" in columns("world/camera")
+    assert "Transform3D:translation" in columns("world/camera") and "Transform3D:mat3x3" in columns("world/camera")
+    assert "Mesh3D:vertex_colors" in columns("world/cloth")
+    assert "Mesh3D:vertex_positions" in columns("world/obstacles/sphere")

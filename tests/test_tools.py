@@ -1,0 +1,53 @@
+"""The measurement tools (benchmark, mode comparison, collision cost, stability tables) run end
+to end at a tiny size and write the tables they promise. Their figures are not asserted: they
+are measurements for people, not tests, on machines that are shared and noisy."""
+
+import json
+
+import pandas as pd
+import pytest
+
+
+def _only_child(path):
+    (child,) = list(path.iterdir())
+    return child
+
+
+def test_benchmark_writes_time_per_step_by_phase(tmp_path):
+    from experiments.benchmark import main
+    main(["--resolutions", "4", "6", "--frames", "1", "--warmup", "1", "--out", str(tmp_path)])
+    out = _only_child(tmp_path)
+    steps = pd.read_csv(out / "steps.csv")
+    assert list(steps.faces) == [2 * 4 * 4, 2 * 6 * 6]
+    for col in ("s_per_step", "physics_s_per_step", "solve_s_per_step", "collisions_s_per_step",
+                "us_per_face_per_step", "share_outside_kernels_and_solver"):
+        assert (steps[col] >= 0).all(), col
+    assert (steps.share_outside_kernels_and_solver <= 1).all()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["growth_exponent"] == pytest.approx(summary["growth_exponent"])  # finite, not NaN
+
+
+def test_compare_modes_tabulates_the_three_modes(tmp_path):
+    from experiments.compare_modes import main
+    main(["--scenes", "sheet_on_sphere", "--frames", "3", "--out", str(tmp_path)])
+    table = pd.read_csv(_only_child(tmp_path) / "table.csv")
+    assert sorted(table["mode"]) == ["adaptive", "nonadaptive", "viewdep"]
+    assert (table.filter(like="faces").to_numpy() > 0).all()
+
+
+def test_stability_tool_writes_csv_and_markdown(tmp_path):
+    from experiments.stability import main
+    main(["--scale", "small", "--frames", "2", "--cases", "one_frame_step", "--out", str(tmp_path)])
+    out = _only_child(tmp_path)
+    table = pd.read_csv(out / "table.csv")
+    assert list(table["case"]) == ["one_frame_step"] and bool(table["ok"].iloc[0])
+    assert "one_frame_step" in (out / "table.md").read_text()
+
+
+def test_collision_cost_tabulates_the_share_of_collisions(tmp_path):
+    from experiments.collision_cost import main
+    main(["--frames", "2", "--resolutions", "6", "10", "--dancer-frames", "2", "--out", str(tmp_path)])
+    table = pd.read_csv(_only_child(tmp_path) / "table.csv")
+    assert len(table) == 2 + 3  # two crushed-sheet resolutions, adaptive, the dancer twice
+    assert ((table.collision_share >= 0) & (table.collision_share <= 1)).all()
+    assert table.collision_time_exponent.notna().sum() == 1
