@@ -159,3 +159,21 @@ def test_main_job_warms_the_kernel_cache_before_any_study(tmp_path, monkeypatch)
     with initialize_config_dir(config_dir=CONF, version_base="1.3"):
         cfg = compose(config_name="config", overrides=overrides)
     assert cfg.scene.name == "karate" and cfg.mode.name == "viewdep"
+
+
+def test_a_preset_runs_as_a_multirun_and_its_callback_aggregates(tmp_path):
+    """An experiment preset end to end (2 frames): its points run through the default launcher,
+    the study callback measures them against the reference and writes the study's figures."""
+    sweep = tmp_path / "sweep"
+    cmd = [sys.executable, "-m", "experiments.run", "-m", "+experiment=ablation_anticipation", "frames=2",
+           f"hydra.sweep.dir={sweep}"]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    runs = _completed(sweep)
+    cfgs = [yaml.safe_load((r / "config.yaml").read_text()) for r in runs]
+    assert len(runs) == 3 and {c["study"] for c in cfgs} == {"ablation_anticipation"}
+    assert {c["scene"]["name"] for c in cfgs} == {"solo_dancer"}
+    assert sum(bool(c["reference"]) for c in cfgs) == 1
+    assert sorted(c["mode"]["view"]["anticipation"] for c in cfgs if not c["reference"]) == [False, True]
+    assert sum((r / "accuracy.json").exists() for r in runs) == 2
+    assert any((sweep / "figures").iterdir())
