@@ -10,6 +10,8 @@ at rest and blend into their movement with a quintic smoothstep, so there is no 
 and garments can settle before the fast parts. `Mannequin` is an obstacle (a union of driven
 capsules): at each time it poses the skeleton and gives every capsule the velocity of its motion
 (central difference of the analytic forward kinematics over 1e-4 s, error O(1e-8) m/s).
+A mannequin's `phase` delays its motion's start (crowds that are not in lock-step): until then
+the body stands still in the motion's opening pose, so every dancer starts at rest.
 """
 
 from __future__ import annotations
@@ -242,27 +244,40 @@ def make_motion(name: str, **params) -> Motion:
 
 # ---- the body as an obstacle -------------------------------------------------------------------
 
+def motion_time(t: float, phase: float) -> float:
+    """Time of a motion delayed by `phase` seconds, at scene time `t` (s): 0 until t = phase, so
+    the body holds its opening pose at rest until its motion starts."""
+    return max(float(t) - float(phase), 0.0)
+
+
 class Mannequin(CapsuleUnion):
-    """The posed body as a driven capsule union, placed at `position` facing `heading` (rad),
-    with the motion shifted by `phase` seconds (crowds that are not in lock-step)."""
+    """The posed body as a driven capsule union, placed at `position` (m) facing `heading` (rad),
+    with its motion's start delayed by `phase` seconds (>= 0; crowds that are not in lock-step):
+    the body stands at rest in the opening pose until t = phase, then moves as the motion from
+    its own time 0, so it starts at rest and blends in like an undelayed body."""
 
     name = "mannequin"
 
     def __init__(self, motion: Motion, position=(0.0, 0.0, 0.0), heading: float = 0.0, phase: float = 0.0,
                  name=None):
+        if not phase >= 0:
+            raise ValueError(f"a mannequin's phase is a delay of its motion (s) and must be >= 0, got {phase}")
         self.motion = motion
-        self.offset = np.asarray(position, dtype=np.float64)
-        self.place_heading = float(heading)
-        self.phase = float(phase)
+        self.offset = np.asarray(position, dtype=np.float64)  # m
+        self.place_heading = float(heading)  # rad about z
+        self.phase = float(phase)  # s, delay of the motion's start
         ends = capsule_endpoints(Pose())
         super().__init__(ends, CAPSULE_RADII, None, name)
         self.motion = motion  # Obstacle's init set a Static motion (for rigid obstacles)
         self.set_time(0.0)
 
+    def pose_at(self, t: float) -> Pose:
+        """The motion's pose at scene time t (s), after the delay (unplaced: the body's own frame)."""
+        return self.motion.pose(motion_time(t, self.phase))
+
     def endpoints_at(self, t: float) -> np.ndarray:
         """(K, 2, 3) world capsule endpoints at time t."""
-        pose = self.motion.pose(t + self.phase)
-        ends = capsule_endpoints(pose)
+        ends = capsule_endpoints(self.pose_at(t))
         c, s = np.cos(self.place_heading), np.sin(self.place_heading)
         R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         return ends @ R.T + self.offset

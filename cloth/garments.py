@@ -10,6 +10,10 @@ that joint's, :class:`JointMotion`).
 * `tube_skirt`: a rectangle of width 2 pi r rolled into a vertical tube around the hips, its
   two side edges joined by a seam (every seam node has two verts), pinned at the waist.
   Two of them, one over the other, make the layered outfit of the karate scene.
+* `obj_garment`: a garment of the user's, read from an OBJ file with texture coordinates
+  (`cloth.io.obj.load_obj`: positions become nodes, UVs material coordinates, a position with
+  several UVs a seam node), placed with the body and pinned by default along its boundary loop
+  nearest to the attachment joint (a skirt's waistband, a shirt's collar).
 
 Garments of one character are merged into one Mesh (`merge_garments`); the connected components
 do not interact with each other until self-collision lands (see the karate scene's notes).
@@ -21,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .character import Mannequin, forward_kinematics
+from .character import JOINTS, Mannequin, forward_kinematics
 from .mesh import Mesh, MeshError, grid_mesh, merge_meshes
 
 
@@ -38,7 +42,7 @@ class JointMotion:
     joint: str
 
     def pose(self, t: float):
-        R, p = forward_kinematics(self.body.motion.pose(t + self.body.phase))[self.joint]
+        R, p = forward_kinematics(self.body.pose_at(t))[self.joint]
         Rh = _heading(self.body.place_heading)
         return Rh @ R, Rh @ p + self.body.offset
 
@@ -55,7 +59,7 @@ class Garment:
 
 def _joint_center(body: Mannequin, joint: str, height: float) -> np.ndarray:
     """World position of `joint` at t = 0, raised by `height` metres."""
-    _, p = forward_kinematics(body.motion.pose(body.phase))[joint]
+    _, p = forward_kinematics(body.pose_at(0.0))[joint]
     return _heading(body.place_heading) @ p + body.offset + np.array([0.0, 0.0, height])
 
 
@@ -143,7 +147,80 @@ def tube_skirt(body: Mannequin, *, waist_radius: float = 0.26, length: float = 0
     return Garment("tube_skirt", mesh, n_along * n_around + np.arange(n_around), JointMotion(body, waist_joint))
 
 
-GARMENTS = {"circle_skirt": circle_skirt, "tube_skirt": tube_skirt}
+def boundary_loops(mesh: Mesh) -> list[np.ndarray]:
+    """The mesh's boundary loops: node indices of each connected chain of boundary edges (node
+    edges with one face; seams are not boundary), in order of their smallest node."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    edges = mesh.edge_nodes[mesh.edge_faces[:, 1] < 0]
+    if len(edges) == 0:
+        return []
+    n = mesh.n_nodes
+    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    nodes = np.unique(edges)
+    return [nodes[label[nodes] == c] for c in np.unique(label[nodes])]
+
+
+def pins_near_joint(mesh: Mesh, joint_position, pin_distance: float = 0.0) -> np.ndarray:
+    """Default pinned nodes of a garment: its boundary loop nearest to `joint_position` (m; the
+    loop whose nodes are closest to it on average, so a waistband wins over a hem that passes
+    near the joint at one point), plus every node within `pin_distance` metres of that loop."""
+    loops = boundary_loops(mesh)
+    if not loops:
+        raise MeshError("has no boundary loop to pin to the body (a closed surface)")
+    p = np.asarray(joint_position, dtype=np.float64)
+    loop = min(loops, key=lambda nodes: float(np.linalg.norm(mesh.node_x[nodes] - p, axis=1).mean()))
+    if pin_distance > 0:
+        from scipy.spatial import cKDTree
+
+        d, _ = cKDTree(mesh.node_x[loop]).query(mesh.node_x)
+        loop = np.union1d(loop, np.flatnonzero(d <= pin_distance))
+    return np.sort(loop).astype(np.int64)
+
+
+def obj_garment(body: Mannequin, path, *, scale: float = 1.0, offset=(0.0, 0.0, 0.0), uv_scale: float = 1.0,
+                joint: str = "abdomen", pin_distance: float = 0.0) -> Garment:
+    """A garment read from the OBJ file `path` and pinned to `body`'s `joint`.
+
+    Positions: OBJ positions x `scale` + `offset` (m), in the frame of the body's placement (the
+    world frame for a body at the origin facing +y; a placed or turned body carries the garment
+    with it), and they are the garment's positions at t = 0, dressed on the body's opening pose.
+    Material coordinates: texture coordinates x `uv_scale` (metres per UV unit); one position
+    with several texture coordinates is a seam node (see cloth.io.obj). Pinned: the boundary loop
+    nearest to the joint at t = 0, plus the nodes within `pin_distance` m of it (pins_near_joint).
+    Raises MeshError (cloth.io.obj.ObjError) whose message starts with the file's path.
+    """
+    from pathlib import Path
+
+    from .io.obj import ObjError, load_obj
+
+    path = Path(path).expanduser()
+    if joint not in JOINTS:
+        raise MeshError(f"unknown joint {joint!r}; known: {list(JOINTS)}")
+    if not scale > 0:
+        raise MeshError(f"scale must be > 0, got {scale}")
+    if not pin_distance >= 0:
+        raise MeshError(f"pin_distance must be >= 0 m, got {pin_distance}")
+    offset = np.asarray(offset, dtype=np.float64)
+    if offset.shape != (3,):
+        raise MeshError(f"offset must be three numbers (m), got {offset.tolist()!r}")
+    mesh = load_obj(path, uv_scale=uv_scale, position_scale=scale)
+    mesh.node_x[:] = (mesh.node_x + offset) @ _heading(body.place_heading).T + body.offset
+    try:
+        pinned = pins_near_joint(mesh, _joint_center(body, joint, 0.0), pin_distance)
+    except MeshError as exc:
+        raise ObjError(f"{path}: {exc}") from None
+    body.set_time(0.0)
+    phi, _, _ = body.query(mesh.node_x)
+    if phi.min() < 0:  # contact keeps cloth out of the body; it cannot start inside it
+        raise ObjError(f"{path}: {np.count_nonzero(phi < 0)} of {mesh.n_nodes} nodes start inside the body "
+                       f"(deepest {-phi.min():.3f} m) in its opening pose; move the garment (offset, scale)")
+    return Garment("obj_garment", mesh, pinned, JointMotion(body, joint))
+
+
+GARMENTS = {"circle_skirt": circle_skirt, "tube_skirt": tube_skirt, "obj": obj_garment}
 
 
 def merge_garments(garments: list[Garment]) -> tuple[Mesh, list[np.ndarray]]:

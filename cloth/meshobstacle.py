@@ -638,9 +638,9 @@ class SkinnedMannequin:
         self.faces = np.vstack(faces)
 
     def __call__(self, t: float) -> np.ndarray:
-        from .character import JOINTS, forward_kinematics
+        from .character import JOINTS, forward_kinematics, motion_time
 
-        frames = forward_kinematics(self.motion.pose(t + self.phase))
+        frames = forward_kinematics(self.motion.pose(motion_time(t, self.phase)))
         R = np.stack([frames[j][0] for j in JOINTS])[self.vert_joint]
         p = np.stack([frames[j][1] for j in JOINTS])[self.vert_joint]
         x = np.einsum("vij,vj->vi", R, self.local) + p

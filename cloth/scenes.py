@@ -235,28 +235,84 @@ def _body_obstacle(name: str, body, kind: str, segments: int):
     return skinned_mannequin_mesh(body, segments=int(segments), name="mannequin_mesh")
 
 
+DANCER_GARMENTS = ("circle_skirt", "obj")  # solo_dancer's garment: the procedural circle skirt, or an OBJ file's
+
+
+def _check_phase(name: str, phase: float) -> None:
+    if not phase >= 0:
+        raise SceneError(f"scene {name!r}: phase is a delay of the motion's start and must be >= 0 s, got {phase}")
+
+
+def _dancer_garment(name: str, body, garment: str, resolution: int, waist_radius: float, skirt_length: float,
+                    obj: dict):
+    """solo_dancer's garment on `body`: the circle skirt, or (garment 'obj') the garment of the
+    OBJ file obj['garment_obj'] (cloth.garments.obj_garment with the other garment_* keys)."""
+    from .garments import circle_skirt, obj_garment
+    from .mesh import MeshError
+
+    if garment not in DANCER_GARMENTS:
+        raise SceneError(f"scene {name!r}: garment must be one of {list(DANCER_GARMENTS)}, got {garment!r}")
+    path = obj["garment_obj"]
+    if garment == "circle_skirt":
+        if path is not None:
+            raise SceneError(f"scene {name!r}: garment_obj ({path}) is only read with garment=obj, "
+                             f"got garment={garment!r}")
+        return circle_skirt(body, waist_radius=waist_radius, length=skirt_length, resolution=max(int(resolution), 3))
+    if path is None or not str(path).strip():
+        raise SceneError(f"scene {name!r}: garment_obj: garment=obj needs the path of an OBJ file with "
+                         "texture coordinates")
+    for key in ("garment_scale", "garment_uv_scale"):
+        if not (isinstance(obj[key], (int, float)) and obj[key] > 0):
+            raise SceneError(f"scene {name!r}: {key} must be > 0, got {obj[key]!r}")
+    if not (isinstance(obj["garment_pin_distance"], (int, float)) and obj["garment_pin_distance"] >= 0):
+        raise SceneError(f"scene {name!r}: garment_pin_distance must be >= 0 m, got {obj['garment_pin_distance']!r}")
+    if np.shape(obj["garment_offset"]) != (3,):
+        raise SceneError(f"scene {name!r}: garment_offset must be three numbers (m), got {obj['garment_offset']!r}")
+    from .character import JOINTS
+    if obj["garment_joint"] not in JOINTS:
+        raise SceneError(f"scene {name!r}: garment_joint must be a joint of the mannequin {list(JOINTS)}, "
+                         f"got {obj['garment_joint']!r}")
+    try:
+        return obj_garment(body, path, scale=float(obj["garment_scale"]), offset=tuple(obj["garment_offset"]),
+                           uv_scale=float(obj["garment_uv_scale"]), joint=obj["garment_joint"],
+                           pin_distance=float(obj["garment_pin_distance"]))
+    except MeshError as exc:  # cloth.io.obj.ObjError among them: the message starts with the file
+        raise SceneError(f"scene {name!r}: garment_obj: {exc}") from None
+
+
 def solo_dancer(material: Material, *, resolution: int = 48, waist_radius: float = 0.18, skirt_length: float = 0.55,
                 speed: float = 1.0, spin_hz: float = 1.0, settle: float = 0.5, blend_in: float = 1.0,
                 position=(0.0, 0.0, 0.0), heading: float = 0.0, phase: float = 0.0,
                 thickness: float = 0.005, friction: float = 0.3, frame_time: float = 0.04,
                 steps_per_frame: int = 8, seed: int = 0, effects=CHARACTER_EFFECTS, body: str = "capsules",
-                body_segments: int = 12) -> Scene:
+                body_segments: int = 12, garment: str = "circle_skirt", garment_obj=None, garment_scale: float = 1.0,
+                garment_offset=(0.0, 0.0, 0.0), garment_uv_scale: float = 1.0, garment_joint: str = "abdomen",
+                garment_pin_distance: float = 0.0) -> Scene:
     """A dancer (the mannequin's `dance` motion) in a circle skirt pinned at the waist, which
     falls from a flat disc, drapes while the dancer stands, then flares out in the turns.
-    `resolution`: segments around the waist; `phase` (s) shifts the motion, `heading` (rad) and
-    `position` (m) place the dancer on the stage. `body`: 'capsules' (analytic) or 'mesh' (the
-    capsules tessellated with `body_segments` around each, skinned to the joints)."""
+    `resolution`: segments around the waist; `phase` (s, >= 0) delays the motion's start (the
+    dancer stands at rest in the opening pose until then), `heading` (rad) and `position` (m)
+    place the dancer on the stage. `body`: 'capsules' (analytic) or 'mesh' (the capsules
+    tessellated with `body_segments` around each, skinned to the joints).
+    `garment`: 'circle_skirt' (`resolution`, `waist_radius`, `skirt_length`) or 'obj': the OBJ
+    file `garment_obj` (positions x `garment_scale` + `garment_offset` m, in the dancer's frame;
+    texture coordinates x `garment_uv_scale` m per UV unit as material coordinates), pinned to
+    `garment_joint` along its boundary loop nearest to that joint, plus the nodes within
+    `garment_pin_distance` m of the loop (cloth.garments.obj_garment); `resolution` is then unused."""
     from .character import Dance, Mannequin
-    from .garments import circle_skirt
 
     name = "solo_dancer"
     _check_resolution(name, resolution)
     _check_size(name, waist_radius=waist_radius, skirt_length=skirt_length, speed=speed)
+    _check_phase(name, phase)
     body_kind = body
     body = Mannequin(Dance(speed=speed, spin_hz=spin_hz, settle=settle, blend_in=blend_in),
                      position=position, heading=heading, phase=phase)
+    obj = dict(garment_obj=garment_obj, garment_scale=garment_scale, garment_offset=garment_offset,
+               garment_uv_scale=garment_uv_scale, garment_joint=garment_joint,
+               garment_pin_distance=garment_pin_distance)
+    skirt = _dancer_garment(name, body, garment, resolution, waist_radius, skirt_length, obj)
     obstacle = _body_obstacle(name, body, body_kind, body_segments)
-    skirt = circle_skirt(body, waist_radius=waist_radius, length=skirt_length, resolution=max(int(resolution), 3))
     return _character_scene(name, material, body, [skirt], thickness=thickness, friction=friction,
                             frame_time=frame_time, steps_per_frame=steps_per_frame, effects=effects,
                             obstacle=obstacle)
@@ -278,7 +334,8 @@ def karate(material: Material, *, resolution: int = 48, inner_radius: float = 0.
     the hips under a shorter, wider overskirt (also a tube with a seam) pinned `outer_waist_height`
     higher: the layers overlap in height and touch when they swing (cloth-cloth contact through
     the self_collision effect; without it the run notes that they pass through each other).
-    `resolution`: segments around each garment; `body`, `body_segments` as in solo_dancer."""
+    `resolution`: segments around each garment; `body`, `body_segments`, `phase` (a delay, s) as in
+    solo_dancer."""
     from .character import Karate, Mannequin
     from .garments import tube_skirt
 
@@ -289,6 +346,7 @@ def karate(material: Material, *, resolution: int = 48, inner_radius: float = 0.
     if outer_radius <= inner_radius:
         raise SceneError(f"scene {name!r}: outer_radius ({outer_radius} m) must exceed inner_radius "
                          f"({inner_radius} m): the overskirt is the outer layer")
+    _check_phase(name, phase)
     body_kind = body
     body = Mannequin(Karate(speed=speed, settle=settle, blend_in=blend_in), position=position, heading=heading,
                      phase=phase)
@@ -303,22 +361,29 @@ def karate(material: Material, *, resolution: int = 48, inner_radius: float = 0.
                             notes=notes, obstacle=obstacle)
 
 
-def crowd_placement(count: int, spacing: float, columns: int, phase_step: float, heading_step: float):
-    """(positions (count, 3), phases (count,), headings (count,)) of a crowd on a stage: rows of
-    `columns` dancers `spacing` metres apart, centred on the origin, rows behind each other (+y)."""
+def crowd_placement(count: int, spacing: float, columns: int, phase_step: float, heading_step: float,
+                    phase_wrap: float = 1.0):
+    """(positions (count, 3) m, phases (count,) s, headings (count,) rad) of a crowd on a stage:
+    rows of `columns` dancers `spacing` metres apart, centred on the origin, rows behind each other
+    (+y). Dancer i's phase, the delay of its motion's start, is (i * `phase_step`) mod
+    `phase_wrap` seconds (in [0, phase_wrap): every dancer dances for most of the run), its
+    heading i * `heading_step` radians."""
     i = np.arange(int(count))
     col, row = i % columns, i // columns
     n_rows = (int(count) + columns - 1) // columns
     x = (col - (min(count, columns) - 1) / 2) * spacing
     y = (row - (n_rows - 1) / 2) * spacing
-    return np.column_stack([x, y, np.zeros(len(i))]), i * phase_step, i * heading_step
+    return np.column_stack([x, y, np.zeros(len(i))]), np.mod(i * phase_step, phase_wrap), i * heading_step
 
 
 def multiple_dancers(material: Material, *, character: int = 0, count: int = 10, spacing: float = 3.0,
-                     columns: int = 5, phase_step: float = 0.37, heading_step: float = 0.6, **dancer) -> Scene:
+                     columns: int = 5, phase_step: float = 0.37, phase_wrap: float = 1.0, heading_step: float = 0.6,
+                     **dancer) -> Scene:
     """Character `character` of a crowd of `count` dancers on a stage (the paper's ten dancers):
     exactly `solo_dancer` placed at its spot, with its own phase and heading so the crowd is not
-    in lock-step. A crowd run simulates every character as its own Simulation (see
+    in lock-step: `spacing` m apart in rows of `columns`, dancer i's motion starting
+    (i `phase_step`) mod `phase_wrap` seconds late (each stands at rest until then) and turned
+    i `heading_step` rad. A crowd run simulates every character as its own Simulation (see
     experiments/run.py); `crowd_size(params)` gives the count."""
     name = "multiple_dancers"
     if int(count) < 1 or int(columns) < 1:
@@ -326,10 +391,13 @@ def multiple_dancers(material: Material, *, character: int = 0, count: int = 10,
     if not 0 <= int(character) < int(count):
         raise SceneError(f"scene {name!r}: character must be in [0, {int(count) - 1}], got {character}")
     _check_size(name, spacing=spacing)
+    if not (phase_step >= 0 and phase_wrap > 0):
+        raise SceneError(f"scene {name!r}: phase_step must be >= 0 s and phase_wrap > 0 s, got {phase_step}, "
+                         f"{phase_wrap}")
     for key in ("position", "phase", "heading"):
         if key in dancer:
             raise SceneError(f"scene {name!r}: {key} is set per character by the crowd layout")
-    pos, phases, headings = crowd_placement(count, spacing, columns, phase_step, heading_step)
+    pos, phases, headings = crowd_placement(count, spacing, columns, phase_step, heading_step, phase_wrap)
     k = int(character)
     scene = solo_dancer(material, position=tuple(pos[k]), phase=float(phases[k]), heading=float(headings[k]),
                         **dancer)

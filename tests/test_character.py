@@ -1,5 +1,6 @@
 """The mannequin: proportions, rigid forward kinematics, motions that start from rest and are
-smooth in time, capsule velocities consistent with the motion, and the body as an obstacle."""
+smooth in time, capsule velocities consistent with the motion, the body as an obstacle, and a
+phase that delays the motion (the body at rest until then)."""
 
 import numpy as np
 import pytest
@@ -98,13 +99,22 @@ def test_mannequin_is_a_moving_obstacle_with_surface_velocity():
     assert m.moving
 
 
-def test_phases_shift_the_motion_and_runs_are_deterministic():
-    a, b = Mannequin(Dance(), phase=0.5), Mannequin(Dance())
-    a.set_time(2.0)
-    b.set_time(2.5)
-    assert np.allclose(a.ends, b.ends, atol=ROUNDOFF)
-    c = Mannequin(Dance(), phase=0.5)
+@pytest.mark.parametrize("motion", [Dance(), Karate()])
+def test_a_phase_delays_the_motion_and_runs_are_deterministic(motion):
+    a, b = Mannequin(motion, phase=0.5), Mannequin(motion)
+    a.set_time(2.5)
+    b.set_time(2.0)
+    assert np.allclose(a.ends, b.ends, atol=ROUNDOFF)  # phase seconds late
+    assert np.allclose(a.end_velocities, b.end_velocities, atol=ROUNDOFF)
+    for t in (0.0, 0.3, 0.5):  # until its start: at rest in the opening pose
+        a.set_time(t)
+        assert np.allclose(a.ends, capsule_endpoints(motion.pose(0.0)), atol=ROUNDOFF)
+        assert np.abs(a.end_velocities).max() < ROUNDOFF
+    c = Mannequin(motion, phase=0.5)
     c.set_time(2.0)
+    a.set_time(2.0)
     assert np.array_equal(a.ends, c.ends)
+    with pytest.raises(ValueError, match="phase"):
+        Mannequin(motion, phase=-0.1)
     with pytest.raises(ValueError, match="unknown motion"):
         make_motion("waltz")

@@ -1,7 +1,10 @@
 """Garments and the character scenes: patterns are isometric to their start shape, the tube's
 seam joins its two side edges, garments start clear of the body, solo_dancer stays finite and
 out of the body at the end of every step, karate keeps its seams through adaptive remeshing, and
-a crowd's records are the sums of its characters' records, each the same as running it alone."""
+a crowd's records are the sums of its characters' records, each the same as running it alone.
+Every dancer of the crowd starts at rest (its phase delays its motion). A procedural garment
+written as OBJ and read back as an OBJ garment is the same garment, pinned the same way, and
+solo_dancer runs with it; a missing or bad garment file is a config error naming file and key."""
 
 import json
 
@@ -11,8 +14,12 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from cloth.character import Dance, Karate, Mannequin
-from cloth.garments import annulus_mesh, circle_skirt, merge_garments, tube_mesh, tube_skirt
+from scipy.spatial import cKDTree
+
+from cloth.character import Dance, Karate, Mannequin, forward_kinematics
+from cloth.garments import (annulus_mesh, boundary_loops, circle_skirt, merge_garments, obj_garment, tube_mesh,
+                            tube_skirt)
+from cloth.io.obj import save_obj
 from cloth.mesh import MeshError
 from cloth.scenes import crowd_placement
 from experiments.build import ConfigError, build_simulation
@@ -24,6 +31,12 @@ ROUNDOFF = 1e-9
 # body. Contact keeps nodes at the thickness (5 mm); at the end of a step a node may be slightly
 # inside that offset but never inside the body itself (phi < 0).
 INSIDE_BODY = 0.0
+# An OBJ written with 17 significant digits reads back to the last bit or so: positions and
+# material coordinates of a garment of ~1 m agree to 1e-12 m.
+OBJ_ROUNDTRIP = 1e-12
+# As in test_character: between samples 1 ms apart the capsule velocities change by at most
+# max acceleration (< 200 m/s^2 in the dance at speed 1) x 1 ms; a jump would be of order m/s.
+MAX_DV_PER_MS = 0.2
 
 
 def _cfg(*overrides):
@@ -190,7 +203,8 @@ def test_crowd_records_are_sums_and_characters_match_running_alone(tmp_path):
     # character 1 alone: solo_dancer placed where the crowd puts it, same camera
     cfg = OmegaConf.load(crowd_dir / "config.yaml")
     pos, phases, headings = crowd_placement(count, cfg.scene.params.spacing, cfg.scene.params.columns,
-                                            cfg.scene.params.phase_step, cfg.scene.params.heading_step)
+                                            cfg.scene.params.phase_step, cfg.scene.params.heading_step,
+                                            cfg.scene.params.phase_wrap)
     alone = tmp_path / "alone"
     run_from_config(_cfg("scene=solo_dancer", "camera=crowd_shots", *common,
                          f"+scene.params.position=[{pos[1][0]},{pos[1][1]},{pos[1][2]}]",
@@ -208,3 +222,138 @@ def test_stills_need_a_camera_and_are_written(tmp_path):
     run_from_config(_cfg("scene=solo_dancer", "frames=2", "output.stills_every=2", "output.rerun=false"), tmp_path)
     assert (tmp_path / "stills" / "frame_00002.png").stat().st_size > 1000
     assert not (tmp_path / "stills" / "frame_00001.png").exists()
+
+
+# ---- crowd delays ------------------------------------------------------------------------------
+
+def test_every_crowd_dancer_starts_at_rest_and_its_delayed_start_is_smooth():
+    cfg = _cfg("scene=multiple_dancers", "scale=small", "camera=none")
+    count = cfg.scene.params.count
+    bodies = [build_simulation(cfg, character=k)[0].scene.obstacles[0] for k in range(count)]
+    phases = np.array([b.phase for b in bodies])
+    assert count == 10 and len(bodies) == 10
+    # pairwise distinct: the closest two (dancers 1 and 9, 0.37 and 0.33 s) are a frame (0.04 s) apart
+    assert np.min(np.abs(phases[:, None] - phases[None]) + np.eye(count)) > 0.02
+    assert phases.min() == 0.0 and phases.max() < cfg.scene.params.phase_wrap  # all dance most of the 6 s
+    settle = cfg.scene.params.settle
+    for body in bodies:
+        body.set_time(0.0)
+        assert np.array_equal(body.end_velocities, np.zeros_like(body.end_velocities)), body.phase
+        opening = body.ends.copy()
+        # standing still in the opening pose until the delayed dance's own settle time is over
+        for t in np.arange(0.0, body.phase + settle, 0.02):
+            body.set_time(t)
+            assert np.allclose(body.ends, opening, atol=ROUNDOFF) and np.abs(body.end_velocities).max() < ROUNDOFF
+        # no velocity jump across the delayed start nor where the blend-in begins
+        for window in (np.arange(-0.02, 0.02, 1e-3) + body.phase,
+                       np.arange(-0.02, 0.3, 1e-3) + body.phase + settle):
+            prev = None
+            for t in window[window >= 0]:
+                body.set_time(t)
+                if prev is not None:
+                    assert np.abs(body.end_velocities - prev).max() < MAX_DV_PER_MS, (body.phase, t)
+                prev = body.end_velocities.copy()
+        # afterwards: the undelayed dance of a dancer at the same spot, phase seconds later
+        undelayed = Mannequin(body.motion, position=body.offset, heading=body.place_heading)
+        for t in (1.7, 3.1, 5.9):
+            assert np.allclose(body.endpoints_at(t), undelayed.endpoints_at(t - body.phase), atol=ROUNDOFF)
+        body.set_time(3.0)
+        assert np.abs(body.end_velocities).max() > 0.5  # m/s: dancing by 3 s
+
+
+# ---- garments from OBJ -------------------------------------------------------------------------
+
+def _same_garment(a, b):
+    """b (read from OBJ) is garment a: a bijection of nodes by position, faces and their corners'
+    material coordinates through it, and the same pinned nodes."""
+    d, to_a = cKDTree(a.mesh.node_x).query(b.mesh.node_x)
+    assert b.mesh.n_nodes == a.mesh.n_nodes and d.max() < OBJ_ROUNDTRIP
+    assert np.array_equal(np.sort(to_a), np.arange(a.mesh.n_nodes))
+    assert b.mesh.n_verts == a.mesh.n_verts and b.mesh.n_faces == a.mesh.n_faces
+
+    def corners(mesh, node_map):  # each face as its (node, u, v) corners, from its smallest node
+        fn, fu = node_map[mesh.vert_node[mesh.face_verts]], mesh.vert_u[mesh.face_verts]
+        k = np.argmin(fn, axis=1)[:, None]
+        roll = (k + np.arange(3)) % 3  # keeps the orientation
+        fn, fu = np.take_along_axis(fn, roll, 1), np.take_along_axis(fu, roll[..., None], 1)
+        order = np.lexsort(fn.T[::-1])
+        return fn[order], fu[order]
+
+    na, ua = corners(a.mesh, np.arange(a.mesh.n_nodes))
+    nb, ub = corners(b.mesh, to_a)
+    assert np.array_equal(na, nb)
+    assert np.abs(ua - ub).max() < OBJ_ROUNDTRIP
+    assert np.array_equal(np.sort(to_a[b.pinned]), np.sort(a.pinned))
+    assert np.array_equal(np.bincount(b.mesh.vert_node)[np.argsort(to_a)], np.bincount(a.mesh.vert_node))  # seams
+
+
+@pytest.mark.parametrize("body, make", [
+    (Mannequin(Dance()), lambda b: circle_skirt(b, resolution=16)),
+    (Mannequin(Karate()), lambda b: tube_skirt(b, resolution=16)),  # a seam: a position with two UVs
+])
+def test_a_garment_written_as_obj_reads_back_as_the_same_obj_garment(tmp_path, body, make):
+    procedural = make(body)
+    save_obj(tmp_path / "garment.obj", procedural.mesh)
+    joint = procedural.motion.joint
+    loaded = obj_garment(body, tmp_path / "garment.obj", joint=joint)
+    _same_garment(procedural, loaded)
+    assert len(boundary_loops(loaded.mesh)) == 2  # waistband and hem; the seam is not boundary
+    # the same file in cm, shifted, with UVs in dm: the same garment after scale, offset, uv_scale
+    mesh = procedural.mesh
+    shift = np.array([0.0, 0.0, 0.5])
+    cm = type(mesh)(node_x=(mesh.node_x - shift) * 100, node_v=mesh.node_v, node_pinned=mesh.node_pinned,
+                    vert_u=mesh.vert_u * 10, vert_node=mesh.vert_node, face_verts=mesh.face_verts)
+    save_obj(tmp_path / "garment_cm.obj", cm)
+    _same_garment(procedural, obj_garment(body, tmp_path / "garment_cm.obj", scale=0.01, offset=shift,
+                                          uv_scale=0.1, joint=joint))
+    # pin_distance just over the distance between rings adds the next ring to the pins
+    free = np.setdiff1d(np.arange(loaded.mesh.n_nodes), loaded.pinned)
+    ring_gap = cKDTree(loaded.mesh.node_x[loaded.pinned]).query(loaded.mesh.node_x[free])[0].min()
+    wider = obj_garment(body, tmp_path / "garment.obj", joint=joint, pin_distance=1.01 * ring_gap)
+    assert np.all(np.isin(loaded.pinned, wider.pinned)) and len(wider.pinned) == 2 * len(loaded.pinned)
+
+
+def test_solo_dancer_runs_with_an_obj_garment_pinned_to_the_body(tmp_path):
+    body = Mannequin(Dance())
+    skirt = circle_skirt(body, resolution=16)
+    path = tmp_path / "skirt.obj"
+    save_obj(path, skirt.mesh)
+    # no rest before the dance, a short blend-in: the waist turns ~0.1 rad in the 5 frames
+    sim, _ = build_simulation(_cfg("scene=solo_dancer", "mode=nonadaptive", "camera=none", "scene.params.garment=obj",
+                                   f"scene.params.garment_obj={path}", "scene.params.settle=0",
+                                   "scene.params.blend_in=0.5"))
+    assert sim.mesh.n_nodes == skirt.mesh.n_nodes and sim.mesh.n_faces == skirt.mesh.n_faces
+    pinned = np.flatnonzero(sim.mesh.node_pinned)
+    assert np.array_equal(pinned, np.sort(skirt.pinned))
+    body = sim.scene.obstacles[0]
+    R0, p0 = forward_kinematics(body.pose_at(0.0))["abdomen"]
+    local = (sim.mesh.node_x[pinned] - p0) @ R0  # the waistband in the waist's frame
+    start = sim.mesh.node_x[pinned].copy()
+    for _ in range(5):
+        sim.advance_frame()
+        assert np.all(np.isfinite(sim.mesh.node_x)) and np.all(np.isfinite(sim.mesh.node_v))
+        R, p = forward_kinematics(body.pose_at(sim.time))["abdomen"]
+        assert np.allclose(sim.mesh.node_x[pinned], local @ R.T + p, atol=ROUNDOFF)
+    assert np.linalg.norm(sim.mesh.node_x[pinned] - start, axis=1).max() > 0.01  # m: the waist has moved
+    assert sim.mesh.node_x[~sim.mesh.node_pinned, 2].min() < start[:, 2].min() - 0.01  # the skirt falls
+
+
+def test_obj_garment_config_errors_name_the_file_and_the_key(tmp_path):
+    missing = tmp_path / "no_skirt.obj"
+    with pytest.raises(ConfigError, match=rf"garment_obj: {missing}: no such file"):
+        build_simulation(_cfg("scene=solo_dancer", "scene.params.garment=obj", f"scene.params.garment_obj={missing}"))
+    flat = tmp_path / "no_uv.obj"
+    flat.write_text("v 0 0 1\nv 1 0 1\nv 0 1 1\nf 1 2 3\n")
+    with pytest.raises(ConfigError, match=rf"garment_obj: {flat}: has no texture coordinates"):
+        build_simulation(_cfg("scene=solo_dancer", "scene.params.garment=obj", f"scene.params.garment_obj={flat}"))
+    skirt = tmp_path / "skirt.obj"
+    save_obj(skirt, circle_skirt(Mannequin(Dance()), resolution=8).mesh)
+    with pytest.raises(ConfigError, match=rf"garment_obj: {skirt}: .* nodes start inside the body"):
+        build_simulation(_cfg("scene=solo_dancer", "scene.params.garment=obj", f"scene.params.garment_obj={skirt}",
+                              "scene.params.garment_offset=[0.2,0,0]"))  # the waistband through the waist
+    with pytest.raises(ConfigError, match="garment_obj: garment=obj needs"):
+        build_simulation(_cfg("scene=solo_dancer", "scene.params.garment=obj"))
+    with pytest.raises(ConfigError, match="garment must be one of"):
+        build_simulation(_cfg("scene=solo_dancer", "scene.params.garment=cape"))
+    with pytest.raises(ConfigError, match="garment_obj .* only read with garment=obj"):
+        build_simulation(_cfg("scene=solo_dancer", f"scene.params.garment_obj={skirt}"))
