@@ -122,14 +122,18 @@ def _segments_across(length: float, circumference: float, n_around: int) -> int:
 
 
 def circle_skirt(body: Mannequin, *, waist_radius: float = 0.18, length: float = 0.55, resolution: int = 48,
-                 waist_joint: str = "abdomen", waist_height: float = 0.06) -> Garment:
+                 waist_joint: str = "abdomen", waist_height: float = 0.06, cell_aspect: float = 1.0) -> Garment:
     """A circle skirt around `body`'s waist: a flat disc (annulus) at the waist at t = 0.
 
-    `resolution` segments around; the number across keeps faces near-equilateral at mid-length.
-    The waistband ring sits `waist_height` above the `waist_joint` and is pinned to it.
+    `resolution` segments around; the number across keeps faces near-equilateral at mid-length,
+    or, with `cell_aspect` > 1, makes the cells that many times longer across than around (thin
+    input triangles, the stability suite's thin garment). The waistband ring sits `waist_height`
+    above the `waist_joint` and is pinned to it.
     """
+    if not cell_aspect >= 1:
+        raise MeshError(f"circle skirt cell_aspect must be >= 1, got {cell_aspect}")
     n_around = int(resolution)
-    n_across = _segments_across(length, 2 * np.pi * (waist_radius + length / 2), n_around)
+    n_across = _segments_across(length, 2 * np.pi * (waist_radius + length / 2) * cell_aspect, n_around)
     mesh = annulus_mesh(waist_radius, length, n_around, n_across, _joint_center(body, waist_joint, waist_height))
     return Garment("circle_skirt", mesh, np.arange(n_around), JointMotion(body, waist_joint))
 

@@ -244,7 +244,7 @@ def _check_phase(name: str, phase: float) -> None:
 
 
 def _dancer_garment(name: str, body, garment: str, resolution: int, waist_radius: float, skirt_length: float,
-                    obj: dict):
+                    obj: dict, cell_aspect: float = 1.0):
     """solo_dancer's garment on `body`: the circle skirt, or (garment 'obj') the garment of the
     OBJ file obj['garment_obj'] (cloth.garments.obj_garment with the other garment_* keys)."""
     from .garments import circle_skirt, obj_garment
@@ -257,7 +257,10 @@ def _dancer_garment(name: str, body, garment: str, resolution: int, waist_radius
         if path is not None:
             raise SceneError(f"scene {name!r}: garment_obj ({path}) is only read with garment=obj, "
                              f"got garment={garment!r}")
-        return circle_skirt(body, waist_radius=waist_radius, length=skirt_length, resolution=max(int(resolution), 3))
+        if not (isinstance(cell_aspect, (int, float)) and cell_aspect >= 1):
+            raise SceneError(f"scene {name!r}: cell_aspect must be >= 1, got {cell_aspect!r}")
+        return circle_skirt(body, waist_radius=waist_radius, length=skirt_length, resolution=max(int(resolution), 3),
+                            cell_aspect=float(cell_aspect))
     if path is None or not str(path).strip():
         raise SceneError(f"scene {name!r}: garment_obj: garment=obj needs the path of an OBJ file with "
                          "texture coordinates")
@@ -287,7 +290,7 @@ def solo_dancer(material: Material, *, resolution: int = 48, waist_radius: float
                 steps_per_frame: int = 8, seed: int = 0, effects=CHARACTER_EFFECTS, body: str = "capsules",
                 body_segments: int = 12, garment: str = "circle_skirt", garment_obj=None, garment_scale: float = 1.0,
                 garment_offset=(0.0, 0.0, 0.0), garment_uv_scale: float = 1.0, garment_joint: str = "abdomen",
-                garment_pin_distance: float = 0.0) -> Scene:
+                garment_pin_distance: float = 0.0, cell_aspect: float = 1.0) -> Scene:
     """A dancer (the mannequin's `dance` motion) in a circle skirt pinned at the waist, which
     falls from a flat disc, drapes while the dancer stands, then flares out in the turns.
     `resolution`: segments around the waist; `phase` (s, >= 0) delays the motion's start (the
@@ -298,7 +301,8 @@ def solo_dancer(material: Material, *, resolution: int = 48, waist_radius: float
     file `garment_obj` (positions x `garment_scale` + `garment_offset` m, in the dancer's frame;
     texture coordinates x `garment_uv_scale` m per UV unit as material coordinates), pinned to
     `garment_joint` along its boundary loop nearest to that joint, plus the nodes within
-    `garment_pin_distance` m of the loop (cloth.garments.obj_garment); `resolution` is then unused."""
+    `garment_pin_distance` m of the loop (cloth.garments.obj_garment); `resolution` is then unused.
+    `cell_aspect` > 1: the circle skirt's cells that many times longer across than around (thin input triangles)."""
     from .character import Dance, Mannequin
 
     name = "solo_dancer"
@@ -311,7 +315,7 @@ def solo_dancer(material: Material, *, resolution: int = 48, waist_radius: float
     obj = dict(garment_obj=garment_obj, garment_scale=garment_scale, garment_offset=garment_offset,
                garment_uv_scale=garment_uv_scale, garment_joint=garment_joint,
                garment_pin_distance=garment_pin_distance)
-    skirt = _dancer_garment(name, body, garment, resolution, waist_radius, skirt_length, obj)
+    skirt = _dancer_garment(name, body, garment, resolution, waist_radius, skirt_length, obj, cell_aspect)
     obstacle = _body_obstacle(name, body, body_kind, body_segments)
     return _character_scene(name, material, body, [skirt], thickness=thickness, friction=friction,
                             frame_time=frame_time, steps_per_frame=steps_per_frame, effects=effects,

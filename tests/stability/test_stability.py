@@ -16,7 +16,9 @@ QUALITY_MIN. The cases:
 - karate_2x: karate in layered skirts at twice its speed, adaptive;
 - crushed_sheet: a strip folds onto itself and a plate presses the pile to 4 cm, adaptive;
 - crushed_sheet_fixed: the same, nonadaptive, 48 cells along the strip (1,440 faces);
-- thin_triangles: layered sheets from an input grid of cells 12x longer than wide, adaptive.
+- thin_triangles: layered sheets from an input grid of cells 12x longer than wide, adaptive;
+- thin_garment: solo_dancer's skirt from cells 12x longer across than around, adaptive, with
+  self-collision.
 
 The larger versions (scale=paper, 100 frames) are `python -m experiments.stability`.
 """
