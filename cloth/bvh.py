@@ -83,10 +83,11 @@ def _build(lo, hi):
     return nlo[:n_nodes], nhi[:n_nodes], left[:n_nodes], start[:n_nodes], count[:n_nodes], order
 
 
-@njit(cache=True)
-def _overlap(alo, ahi, blo, bhi):
-    return (alo[0] <= bhi[0] and blo[0] <= ahi[0] and alo[1] <= bhi[1] and blo[1] <= ahi[1]
-            and alo[2] <= bhi[2] and blo[2] <= ahi[2])
+@njit(cache=True, inline="always")
+def _overlap(alo, ahi, a, blo, bhi, b):
+    """Whether box a of (alo, ahi) and box b of (blo, bhi) overlap (scalar reads: no row views)."""
+    return (alo[a, 0] <= bhi[b, 0] and blo[b, 0] <= ahi[a, 0] and alo[a, 1] <= bhi[b, 1]
+            and blo[b, 1] <= ahi[a, 1] and alo[a, 2] <= bhi[b, 2] and blo[b, 2] <= ahi[a, 2])
 
 
 @njit(cache=True)
@@ -113,7 +114,7 @@ def _traverse(lo, hi, tree, lo2, hi2, tree2, same):
     while top >= 0:
         a, b = stack[top, 0], stack[top, 1]
         top -= 1
-        if not _overlap(alo[a], ahi[a], blo[b], bhi[b]):
+        if not _overlap(alo, ahi, a, blo, bhi, b):
             continue
         if same and a == b:
             if aleft[a] < 0:  # one leaf: all pairs inside it
@@ -121,7 +122,7 @@ def _traverse(lo, hi, tree, lo2, hi2, tree2, same):
                 for p in range(s, s + c):
                     for q in range(p + 1, s + c):
                         i, j = aorder[p], aorder[q]
-                        if _overlap(lo[i], hi[i], lo[j], hi[j]):
+                        if _overlap(lo, hi, i, lo, hi, j):
                             out = _push(out, n, min(i, j), max(i, j))
                             n += 1
             else:
@@ -140,7 +141,7 @@ def _traverse(lo, hi, tree, lo2, hi2, tree2, same):
                 i = aorder[p]
                 for q in range(bstart[b], bstart[b] + bcount[b]):
                     j = border[q]
-                    if _overlap(lo[i], hi[i], lo2[j], hi2[j]):
+                    if _overlap(lo, hi, i, lo2, hi2, j):
                         if same:
                             out = _push(out, n, min(i, j), max(i, j))
                         else:

@@ -11,6 +11,9 @@ Points are 1-D float64 arrays of length 3 (usually row views x[i] of an (N, 3) a
   roots of its derivative into monotone pieces and bisecting each sign change; the critical
   points and the ends of the step are candidates too, so that grazing contacts (double roots)
   are not missed. A candidate counts when the distance there is at most eta.
+  Before the cubic, `vf_separated` / `ee_separated` reject (exactly) a pair that a slab wider
+  than eta separates throughout the step (axis: the face normal, or the edges' cross product,
+  at either end of the step): most pairs of a resting contact.
 - `edge_triangle_crossing(e0, e1, a, b, c) -> (hit, s)`: a segment passing through a triangle.
 """
 
@@ -25,6 +28,9 @@ ROOT_TOL = 1e-12
 # coplanar all along: the distance is then checked at COPLANAR_SAMPLES evenly spaced times.
 COPLANAR_REL = 1e-14
 COPLANAR_SAMPLES = 17
+# Two directions whose cross product is below this (|u x v|^2 / (|u|^2 |v|^2)) are parallel: they
+# give no separating axis (a degenerate face, parallel edges), and the slab rejection skips them.
+PARALLEL_SIN2 = 1e-12
 
 
 @njit(cache=True, inline="always")
@@ -208,10 +214,78 @@ def _candidate_times(c0, c1, c2, c3, scale):
     return np.sort(out[:n])
 
 
+@njit(cache=True, inline="always")
+def _unit_cross(u0, u1, u2, v0, v1, v2):
+    """The unit vector along u x v (scalars), and False if u and v are (nearly) parallel."""
+    n0, n1, n2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
+    L = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    scale = (u0 * u0 + u1 * u1 + u2 * u2) * (v0 * v0 + v1 * v1 + v2 * v2)
+    if not L * L > PARALLEL_SIN2 * scale:
+        return 0.0, 0.0, 0.0, False
+    return n0 / L, n1 / L, n2 / L, True
+
+
+@njit(cache=True, inline="always")
+def vf_separated(p0, a0, b0, c0, p1, a1, b1, c1, eta):
+    """True when a slab wider than eta separates the point from the triangle during the whole
+    linear motion, so that they cannot come within eta (an exact, cheap rejection before the
+    cubic). The slab's axis is the face normal at the start or at the end of the step. Along a
+    fixed axis n, n.p(t) - max_k n.v_k(t) is concave in t (a linear function minus a maximum
+    of linear ones), so if it exceeds eta at t = 0 and at t = 1 it does so throughout, and then
+    every point of the triangle is farther than eta from p; likewise the other way round."""
+    for end in range(2):
+        a, b, c = (a0, b0, c0) if end == 0 else (a1, b1, c1)
+        n0, n1, n2, ok = _unit_cross(b[0] - a[0], b[1] - a[1], b[2] - a[2], c[0] - a[0], c[1] - a[1], c[2] - a[2])
+        if not ok:
+            continue
+        above, below = True, True
+        for t in range(2):
+            p, a, b, c = (p0, a0, b0, c0) if t == 0 else (p1, a1, b1, c1)
+            dp = n0 * p[0] + n1 * p[1] + n2 * p[2]
+            da = n0 * a[0] + n1 * a[1] + n2 * a[2]
+            db = n0 * b[0] + n1 * b[1] + n2 * b[2]
+            dc = n0 * c[0] + n1 * c[1] + n2 * c[2]
+            if not dp - max(da, max(db, dc)) > eta:
+                above = False
+            if not min(da, min(db, dc)) - dp > eta:
+                below = False
+        if above or below:
+            return True
+    return False
+
+
+@njit(cache=True, inline="always")
+def ee_separated(p0, p1, q0, q1, P0, P1, Q0, Q1, eta):
+    """True when a slab wider than eta separates edge (p, q) from edge (P, Q) during the whole
+    linear motion (the argument of `vf_separated`, with the axis along the two edges' cross
+    product at the start or at the end of the step)."""
+    for end in range(2):
+        p, q, P, Q = (p0, q0, P0, Q0) if end == 0 else (p1, q1, P1, Q1)
+        n0, n1, n2, ok = _unit_cross(q[0] - p[0], q[1] - p[1], q[2] - p[2], Q[0] - P[0], Q[1] - P[1], Q[2] - P[2])
+        if not ok:
+            continue
+        above, below = True, True
+        for t in range(2):
+            p, q, P, Q = (p0, q0, P0, Q0) if t == 0 else (p1, q1, P1, Q1)
+            dp = n0 * p[0] + n1 * p[1] + n2 * p[2]
+            dq = n0 * q[0] + n1 * q[1] + n2 * q[2]
+            dP = n0 * P[0] + n1 * P[1] + n2 * P[2]
+            dQ = n0 * Q[0] + n1 * Q[1] + n2 * Q[2]
+            if not min(dp, dq) - max(dP, dQ) > eta:
+                above = False
+            if not min(dP, dQ) - max(dp, dq) > eta:
+                below = False
+        if above or below:
+            return True
+    return False
+
+
 @njit(cache=True)
 def vf_ccd(p0, a0, b0, c0, p1, a1, b1, c1, eta):
     """Earliest t in [0, 1] at which the point p and the triangle abc, moving linearly from
     (p0, a0, b0, c0) to (p1, a1, b1, c1), come within `eta`; -1.0 if they do not."""
+    if vf_separated(p0, a0, b0, c0, p1, a1, b1, c1, eta):
+        return -1.0
     A0, B0, C0 = a0 - p0, b0 - p0, c0 - p0
     dA, dB, dC = (a1 - p1) - A0, (b1 - p1) - B0, (c1 - p1) - C0
     k0, k1, k2, k3, scale = _cubic(A0, dA, B0, dB, C0, dC)
@@ -227,6 +301,8 @@ def vf_ccd(p0, a0, b0, c0, p1, a1, b1, c1, eta):
 def ee_ccd(p0, p1, q0, q1, P0, P1, Q0, Q1, eta):
     """Earliest t in [0, 1] at which edge (p, q), moving from (p0, q0) to (p1, q1), and edge
     (P, Q), moving from (P0, Q0) to (P1, Q1), come within `eta`; -1.0 if they do not."""
+    if ee_separated(p0, p1, q0, q1, P0, P1, Q0, Q1, eta):
+        return -1.0
     A0, B0, C0 = q0 - p0, P0 - p0, Q0 - p0
     dA, dB, dC = (q1 - p1) - A0, (P1 - p1) - B0, (Q1 - p1) - C0
     k0, k1, k2, k3, scale = _cubic(A0, dA, B0, dB, C0, dC)

@@ -343,6 +343,9 @@ class TriangleMeshObstacle:
         (self.faces, self._face_edge, self._n_edges, self.face_component, self.component_closed,
          self.flipped_components) = _topology(faces, x0)
         self.n_components = int(self.component_closed.size)
+        self.edge_nodes = np.empty((self._n_edges, 2), dtype=np.int64)  # (E, 2) vertices of each edge
+        self.edge_nodes[self._face_edge.ravel()] = np.column_stack([self.faces.ravel(),
+                                                                    np.roll(self.faces, -1, axis=1).ravel()])
         self._comp_faces = [np.flatnonzero(self.face_component == c) for c in range(self.n_components)]
         self._tree = None
         self._t = None
@@ -486,6 +489,17 @@ class TriangleMeshObstacle:
     def triangles(self):
         """(positions (V, 3), faces (F, 3)) now: the obstacle side of cloth-obstacle untangling."""
         return self.positions, self.faces
+
+    def collision_topology(self):
+        """(faces (F, 3), face_edges (F, 3) edge ids, edge_nodes (E, 2)): the obstacle side of the
+        step's cloth-obstacle collision handling (cloth.selfcollision.resolve_collisions_with_obstacles)."""
+        return self.faces, self._face_edge, self.edge_nodes
+
+
+def mesh_obstacles(obstacles) -> list:
+    """The TriangleMeshObstacle instances among `obstacles` (a list or a cloth.obstacles.ObstacleSet)."""
+    obs = getattr(obstacles, "obstacles", obstacles)
+    return [ob for ob in obs if isinstance(ob, TriangleMeshObstacle)]
 
 
 def mesh_obstacle_triangles(obstacles) -> list:

@@ -7,7 +7,8 @@ One frame, as in DESIGN.md section 1::
         handles -> prescribed positions at t + h
         implicit Euler step (force terms of the declared effects, linear solve)
         obstacle contact (only if the scene declares 'obstacles')
-        self-collision: proximity, CCD, impact zones (only if it declares 'self_collision')
+        self-collision: proximity, CCD, impact zones (only if it declares 'self_collision'), in
+            one pass with the cloth against triangle-mesh obstacles (only if it has some)
     per-frame record
 
 After a remesh that changed the mesh, a scene with 'self_collision' is untangled (crossings
@@ -36,7 +37,9 @@ PHASES = ("sizing", "remesh", "physics", "solve", "collisions", "io", "other")
 CONTACT_BAND = 0.5
 # Columns of the self-collision record; zero in scenes without the effect.
 COLLISION_RECORD = {"self_velocity_clamped": 0, "self_proximity": 0, "self_ccd_hits": 0, "self_ccd_passes": 0,
-                    "impact_zones": 0, "impact_zone_rounds": 0, "self_collisions_left": 0, "intersections_found": 0,
+                    "impact_zones": 0, "impact_zone_rounds": 0, "self_collisions_left": 0,
+                    "obstacle_proximity": 0, "obstacle_ccd_hits": 0, "obstacle_collisions_left": 0,
+                    "intersections_found": 0,
                     "untangle_iterations": 0, "intersections_left": 0, "intersection_depth_m": 0.0,
                     "intersection_length_m": 0.0}
 # Bound of the contour-minimisation iterations after a remesh (the record says what is left).
@@ -105,6 +108,15 @@ class Simulation:
         if "self_collision" in scene.effects:
             from .selfcollision import SelfCollisionParams
             self.self_collision = SelfCollisionParams(thickness=scene.thickness, friction=scene.friction)
+        # Cloth against triangle-mesh obstacles in every step: proximity, CCD and impact zones with
+        # the obstacles' vertices as pinned nodes (cloth.selfcollision.resolve_collisions_with_obstacles;
+        # with self_collision, one pass for both). None: node-based contact only.
+        self.mesh_collision = None
+        if self.has_mesh_obstacles and scene.thickness > 0:
+            from .selfcollision import SelfCollisionParams
+            self.mesh_collision = self.self_collision or SelfCollisionParams(thickness=scene.thickness,
+                                                                             friction=scene.friction)
+        self._inside_at_start = None  # free nodes inside an obstacle at the step's start (mesh_collision skips them)
         self.frame = 0
         self.time = 0.0
         self.steps_taken = 0
@@ -157,6 +169,7 @@ class Simulation:
         free = np.flatnonzero(~mesh.node_pinned)
         phi, normal, vel = self.obstacle_set.query(mesh.node_x[free])
         near = np.flatnonzero(phi < scene.thickness * (1.0 + CONTACT_BAND))
+        self._inside_at_start = free[phi < 0.0]
         return ContactConstraints(free[near], np.ascontiguousarray(normal[near]),
                                   np.ascontiguousarray(vel[near]), scene.friction)
 
@@ -164,7 +177,8 @@ class Simulation:
         scene, mesh, h = self.scene, self.scene.mesh, self.scene.dt
         m = scene.material
         contacts = None
-        x_start = mesh.node_x.copy() if self.self_collision is not None else None
+        x_start = mesh.node_x.copy() if self.self_collision is not None or self.mesh_collision is not None else None
+        y_start = self._mesh_obstacle_positions() if self.mesh_collision is not None else None
         if self.contact is not None:
             t0 = time.perf_counter()
             contacts = self._contact_constraints()
@@ -193,25 +207,59 @@ class Simulation:
                              scene.thickness, scene.friction, h)
             stats["contacts"] = max(stats["contacts"], int(c.get("contacts", 0)))
             timings["collisions"] += time.perf_counter() - t0
-        if self.self_collision is not None:
+        if self.mesh_collision is not None:  # cloth-obstacle (and cloth-cloth) collisions in one pass
+            t0 = time.perf_counter()
+            self._resolve_self_collisions(x_start, h, stats, y_start)
+            timings["collisions"] += time.perf_counter() - t0
+        elif self.self_collision is not None:
             t0 = time.perf_counter()
             self._resolve_self_collisions(x_start, h, stats)
             timings["collisions"] += time.perf_counter() - t0
         self._check(stats)
 
-    def _resolve_self_collisions(self, x_start: np.ndarray, h: float, stats: dict) -> None:
-        from .selfcollision import resolve_self_collisions
+    def _mesh_obstacle_positions(self) -> list:
+        """Vertex positions (copies) of the triangle-mesh obstacles at the current time."""
+        from .meshobstacle import mesh_obstacles
+        obs = mesh_obstacles(self.obstacle_set)
+        for ob in obs:
+            ob.set_time(self.time)  # a no-op unless the obstacles were moved since the last step
+        return [ob.positions.copy() for ob in obs]
+
+    def _resolve_self_collisions(self, x_start: np.ndarray, h: float, stats: dict, y_start=None) -> None:
+        """Self-collision response of the step; with y_start (the mesh obstacles' positions at the
+        step's start) cloth-obstacle collisions too, in the same pass (cloth-cloth pairs only in
+        scenes with self_collision)."""
+        from .selfcollision import resolve_collisions_with_obstacles, resolve_self_collisions
         mesh = self.scene.mesh
         x_end = mesh.node_x.copy()
-        s = resolve_self_collisions(mesh.face_nodes, mesh.face_edges, mesh.edge_nodes, x_start,
-                                    mesh.node_x, mesh.node_m, mesh.node_pinned, self.self_collision)
         v_max = float(np.sqrt(np.max(np.einsum("ij,ij->i", mesh.node_v, mesh.node_v)))) if len(mesh.node_v) else 0.0
+        if y_start is None:
+            params = self.self_collision
+            s = resolve_self_collisions(mesh.face_nodes, mesh.face_edges, mesh.edge_nodes, x_start,
+                                        mesh.node_x, mesh.node_m, mesh.node_pinned, params)
+        else:
+            from .meshobstacle import mesh_obstacles
+            params = self.mesh_collision
+            obstacles = [(y0, ob.positions, *ob.collision_topology())
+                         for y0, ob in zip(y_start, mesh_obstacles(self.obstacle_set))]
+            for y0, y1, *_ in obstacles:  # the guard's bound: the obstacles push at their own speed
+                v_max = max(v_max, float(np.sqrt(np.max(np.einsum("ij,ij->i", y1 - y0, y1 - y0)))) / h)
+            skip = None
+            if self._inside_at_start is not None and self._inside_at_start.size:
+                skip = np.zeros(mesh.n_nodes, dtype=bool)
+                skip[self._inside_at_start] = True
+            s = resolve_collisions_with_obstacles(mesh.face_nodes, mesh.face_edges, mesh.edge_nodes, x_start,
+                                                  mesh.node_x, mesh.node_m, mesh.node_pinned, params, obstacles,
+                                                  self_pairs=self.self_collision is not None, skip=skip)
+            for key in ("obstacle_proximity", "obstacle_ccd_hits"):
+                stats[key] = max(stats.get(key, 0), s[key])
+            stats["obstacle_collisions_left"] = max(stats["obstacle_collisions_left"], s["obstacle_collisions_left"])
         mesh.node_v += (mesh.node_x - x_end) / h
         # Energy guard. An inelastic response cannot make a node faster than the fastest node
         # was before it, plus the speed of a push across the whole thickness in one step; chains
         # of Gauss-Seidel corrections in dense piles can, and such a node would fly off. Its
         # speed is clamped to that bound (its corrected position stays) and the record counts it.
-        cap = v_max + self.self_collision.thickness / h
+        cap = v_max + params.thickness / h
         speed = np.sqrt(np.einsum("ij,ij->i", mesh.node_v, mesh.node_v))
         over = speed > cap
         if over.any():
