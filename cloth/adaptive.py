@@ -49,17 +49,13 @@ CROSSING_GUARD_ROUNDS = 3
 # holds an input node not yet frozen (a box around new split nodes may hold none).
 CROSSING_GUARD_PADS = (0.0, 0.5, 1.0, 2.0)
 # Pop filter and obstacle push-out, alternated at most this many times (until the push-out has
-# nothing to move, POP_PUSH_DEPTH). Refining coarse cloth draped on a curved obstacle puts each new midpoint
+# nothing to move). Refining coarse cloth draped on a curved obstacle puts each new midpoint
 # inside it by the chord's sagitta (4-8 cm for 0.4 m edges on the 0.25 m sphere); pushed out
 # alone, it stretches its small new faces (12-15 J of membrane energy in a 0.12 kg sheet), the
 # pop filter relaxes that but, blind to the obstacle, pulls nodes back in, and the second
 # push-out restored the stretch: viewdep sheet_on_sphere runs reached 1.6 J of kinetic energy
 # in one frame. With three rounds the same run stays below 0.05 J after the first contact.
 POP_PUSH_ROUNDS = 3
-# ... stopping when the push-out moved no node by more than this fraction of the thickness
-# (cloth resting on a body is always re-projected by round-off amounts; another round of the
-# pop filter for that would triple its cost in every frame of a character scene).
-POP_PUSH_DEPTH = 0.1
 
 
 def restore_momentum(mesh, momentum: np.ndarray) -> None:
@@ -225,7 +221,7 @@ class AdaptiveRemesher:
             rounds = []
             for _ in range(POP_PUSH_ROUNDS):
                 rounds.append(pop_filter(new, internal, changed, target, self.pop, sim.solver))
-                if push_out_of_obstacles(sim)["max_depth_m"] <= POP_PUSH_DEPTH * sim.scene.thickness:
+                if push_out_of_obstacles(sim)["contacts"] == 0:
                     break
             stats.update(pop_energy_before_j=rounds[0]["energy_before_j"], pop_energy_after_j=rounds[-1]["energy_after_j"],
                          pop_iterations=sum(r["iterations"] for r in rounds))
