@@ -248,3 +248,28 @@ def test_path_from_config_names_the_problem():
         {"start": 0, "type": "static", "camera": {"position": [0, -2, 1], "look_at": [0, 0, 0]}},
         {"start": 2, "type": "orbit", "center": [0, 0, 0], "radius": 1, "period_s": 2}]})
     assert p.cuts == (2.0,)
+
+
+def test_keyframe_path_interpolates_every_channel_smoothly():
+    """Position, look-at, up and field of view pass through their keys, stay within a linear
+    segment's neighbourhood between them (Catmull-Rom on evenly spaced keys), and have no
+    velocity jump at an interior key (C1)."""
+    times = [0.0, 1.0, 2.0]
+    path = KeyframePath(times=times, positions=np.array([[0.0, -3, 1], [2, -3, 1], [4, -2, 2]]),
+                        targets=np.array([[0.0, 0, 1], [0, 0, 1.5], [1, 0, 1]]),
+                        ups=np.array([[0.0, 0, 1], [0.1, 0, 1], [0.2, 0, 1]]), fovs=np.array([40.0, 60.0, 30.0]))
+    for k, t in enumerate(times):
+        cam = path.camera_at(t)
+        assert np.allclose(cam.position, path.positions[k]) and np.allclose(cam.look_at, path.targets[k])
+        assert np.allclose(cam.up, path.ups[k]) and cam.fov_y_deg == pytest.approx(path.fovs[k])
+    mid = path.camera_at(0.5)
+    assert 40.0 < mid.fov_y_deg < 60.0 and 0.0 < mid.up[0] < 0.1 and 1.0 < mid.look_at[2] < 1.5
+    dt = 1e-6
+    def rate(f, t0, t1):
+        return (np.asarray(f(t1), float) - np.asarray(f(t0), float)) / (t1 - t0)
+    for channel in (lambda t: path.camera_at(t).position, lambda t: path.camera_at(t).up,
+                    lambda t: [path.camera_at(t).fov_y_deg]):
+        left, right = rate(channel, 1.0 - dt, 1.0), rate(channel, 1.0, 1.0 + dt)
+        assert np.allclose(left, right, atol=1e-4), (left, right)
+    assert np.allclose(path.camera_at(-1.0).position, path.positions[0])  # held at the ends
+    assert np.allclose(path.camera_at(5.0).position, path.positions[-1])
