@@ -56,6 +56,12 @@ CROSSING_GUARD_PADS = (0.0, 0.5, 1.0, 2.0)
 # push-out restored the stretch: viewdep sheet_on_sphere runs reached 1.6 J of kinetic energy
 # in one frame. With three rounds the same run stays below 0.05 J after the first contact.
 POP_PUSH_ROUNDS = 3
+# After the first round the pop filter relaxes only the faces within this many rings of the
+# nodes the push-out moved (the others were relaxed already and the push-out left their nodes
+# where they were); -1: every changed face again. On the refinement case of
+# tests/test_adaptive.py (seeds 0-5) the energy after the filter differs from the full rounds'
+# by less than 0.5 %, and at 12k faces a remesh costs 1.1 s instead of 2.3 s.
+POP_PUSH_RINGS = 2
 
 
 def restore_momentum(mesh, momentum: np.ndarray) -> None:
@@ -69,6 +75,15 @@ def restore_momentum(mesh, momentum: np.ndarray) -> None:
     m_free = float(mesh.node_m[free].sum())
     if m_free > 0:
         mesh.node_v[free] += (momentum - mesh.node_m @ mesh.node_v) / m_free
+
+
+def faces_near(face_nodes: np.ndarray, nodes: np.ndarray, rings: int) -> np.ndarray:
+    """(F,) bool: the faces with a node within `rings` face rings of the marked `nodes` (n,) bool
+    (rings = 0: the faces touching a marked node)."""
+    near = nodes.copy()
+    for _ in range(rings):
+        near[face_nodes[near[face_nodes].any(axis=1)].reshape(-1)] = True
+    return near[face_nodes].any(axis=1)
 
 
 def push_out_of_obstacles(sim) -> dict:
@@ -221,8 +236,11 @@ class AdaptiveRemesher:
             rounds = []
             for _ in range(POP_PUSH_ROUNDS):
                 rounds.append(pop_filter(new, internal, changed, target, self.pop, sim.solver))
+                x_before = new.node_x.copy()
                 if push_out_of_obstacles(sim)["contacts"] == 0:
                     break
+                if POP_PUSH_RINGS >= 0:
+                    changed = faces_near(new.face_nodes, np.any(new.node_x != x_before, axis=1), POP_PUSH_RINGS)
             stats.update(pop_energy_before_j=rounds[0]["energy_before_j"], pop_energy_after_j=rounds[-1]["energy_after_j"],
                          pop_iterations=sum(r["iterations"] for r in rounds))
         if sim.self_collision is not None:

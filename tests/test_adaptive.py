@@ -164,26 +164,39 @@ def test_crossing_guard_redoes_a_remesh_that_makes_the_cloth_cross_itself():
     assert guarded.collapses > 0 and guarded.mesh.n_faces < mesh.n_faces
 
 
-# Green strain below which no face may be after refining coarse cloth draped on the sphere: a
-# stretch of 3.3x. Measured: 2.3 with the pop filter and push-out alternated (POP_PUSH_ROUNDS),
-# 29.9 (a stretch of 7.8x) with one push-out after one pop filter.
-REFINE_ON_SPHERE_MAX_STRAIN = 5.0
+# Energy left by the pop filter after refining coarse cloth draped on the sphere (J, seeds 0-5):
+# one pop filter then one push-out 14.3, 15.7, 21.6, 18.4, 16.5, 9.1; alternated three times
+# 9.3, 9.2, 14.1, 12.3, 11.5, 6.5. The largest Green strain is no measure of it: a few faces
+# decide it, and it scatters from 2 to 46 with the seed for either.
+ALTERNATION_GAIN = 0.8  # the alternation leaves at most this fraction of one round's energy
+# Later rounds restricted to the faces near what the push-out moved (POP_PUSH_RINGS) leave the
+# same energy as full rounds up to this relative difference (measured: below 0.5 %).
+RESTRICTED_ROUNDS_REL = 0.01
 
 
-def test_refining_coarse_cloth_on_the_sphere_alternates_pop_filter_and_push_out():
-    """Refining 0.4 m faces draped on the 0.25 m sphere puts the new midpoints inside it by up to
-    the chords' sagitta; pushed out, they stretch their small faces. Alternating the pop filter
-    with the push-out (cloth.adaptive.POP_PUSH_ROUNDS) relaxes that; one round of each does not."""
+def _refine_on_sphere(seed, monkeypatch, rounds, rings):
     from dataclasses import replace
 
-    from cloth.membrane import face_green_strain
-
-    sim = _sim("scene=sheet_on_sphere", "scene.scales.small.sizing.size_min=0.4", "mode.sizing.size_max=0.4")
+    import cloth.adaptive
+    monkeypatch.setattr(cloth.adaptive, "POP_PUSH_ROUNDS", rounds)
+    monkeypatch.setattr(cloth.adaptive, "POP_PUSH_RINGS", rings)
+    sim = _sim("scene=sheet_on_sphere", "scene.scales.small.sizing.size_min=0.4", "mode.sizing.size_max=0.4",
+               f"seed={seed}")
     while sim.frame < 25:  # 36 faces, draped
         sim.advance_frame()
     sim.remesher.sizing = replace(sim.remesher.sizing, size_min=0.04, size_max=0.2)
-    rec = sim.advance_frame()
-    assert rec["remesh_nodes_pushed_out"] > 100 and rec["remesh_max_depth_m"] > 0.05  # the case is hard
-    m = sim.mesh
-    strain = np.linalg.eigvalsh(face_green_strain(m.node_x, m.face_nodes, m.face_Dm_inv))[:, 1].max()
-    assert strain < REFINE_ON_SPHERE_MAX_STRAIN, strain
+    return sim.advance_frame()
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_refining_coarse_cloth_on_the_sphere_alternates_pop_filter_and_push_out(seed, monkeypatch):
+    """Refining 0.4 m faces draped on the 0.25 m sphere puts the new midpoints inside it by up to
+    the chords' sagitta; pushed out, they stretch their small faces. Alternating the pop filter
+    with the push-out (cloth.adaptive.POP_PUSH_ROUNDS) relaxes more of that than one round of
+    each, and restricting the later rounds to the pushed nodes' surroundings changes nothing."""
+    one = _refine_on_sphere(seed, monkeypatch, 1, -1)
+    assert one["remesh_nodes_pushed_out"] > 100 and one["remesh_max_depth_m"] > 0.05  # the case is hard
+    full = _refine_on_sphere(seed, monkeypatch, 3, -1)
+    restricted = _refine_on_sphere(seed, monkeypatch, 3, 2)
+    assert full["pop_energy_after_j"] < ALTERNATION_GAIN * one["pop_energy_after_j"]
+    assert restricted["pop_energy_after_j"] == pytest.approx(full["pop_energy_after_j"], rel=RESTRICTED_ROUNDS_REL)
