@@ -505,8 +505,7 @@ def mesh_obstacles(obstacles) -> list:
 def mesh_obstacle_triangles(obstacles) -> list:
     """[(positions, faces), ...] of the triangle-mesh obstacles among `obstacles` (a list or a
     cloth.obstacles.ObstacleSet), for cloth.untangle.untangle(..., obstacles=...)."""
-    obs = getattr(obstacles, "obstacles", obstacles)
-    return [ob.triangles() for ob in obs if isinstance(ob, TriangleMeshObstacle)]
+    return [ob.triangles() for ob in mesh_obstacles(obstacles)]
 
 
 # --------------------------------------------------------------------------------------------

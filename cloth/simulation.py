@@ -100,10 +100,11 @@ class Simulation:
             from .obstacles import ObstacleSet
             self.obstacle_set = ObstacleSet(scene.obstacles)
             self.contact = resolve_obstacle_contacts
-        self.has_mesh_obstacles = False  # triangle-mesh obstacles: untangled against after remeshes
+        self.mesh_obstacles = []  # the triangle-mesh obstacles among them (collided per step, untangled against)
         if self.contact is not None:
             from .meshobstacle import TriangleMeshObstacle
-            self.has_mesh_obstacles = any(isinstance(o, TriangleMeshObstacle) for o in self.obstacle_set.obstacles)
+            self.mesh_obstacles = [o for o in self.obstacle_set.obstacles if isinstance(o, TriangleMeshObstacle)]
+        self.has_mesh_obstacles = bool(self.mesh_obstacles)
         self.self_collision = None
         if "self_collision" in scene.effects:
             from .selfcollision import SelfCollisionParams
@@ -219,11 +220,9 @@ class Simulation:
 
     def _mesh_obstacle_positions(self) -> list:
         """Vertex positions (copies) of the triangle-mesh obstacles at the current time."""
-        from .meshobstacle import mesh_obstacles
-        obs = mesh_obstacles(self.obstacle_set)
-        for ob in obs:
+        for ob in self.mesh_obstacles:
             ob.set_time(self.time)  # a no-op unless the obstacles were moved since the last step
-        return [ob.positions.copy() for ob in obs]
+        return [ob.positions.copy() for ob in self.mesh_obstacles]
 
     def _resolve_self_collisions(self, x_start: np.ndarray, h: float, stats: dict, y_start=None) -> None:
         """Self-collision response of the step; with y_start (the mesh obstacles' positions at the
@@ -238,10 +237,8 @@ class Simulation:
             s = resolve_self_collisions(mesh.face_nodes, mesh.face_edges, mesh.edge_nodes, x_start,
                                         mesh.node_x, mesh.node_m, mesh.node_pinned, params)
         else:
-            from .meshobstacle import mesh_obstacles
             params = self.mesh_collision
-            obstacles = [(y0, ob.positions, *ob.collision_topology())
-                         for y0, ob in zip(y_start, mesh_obstacles(self.obstacle_set))]
+            obstacles = [(y0, ob.positions, *ob.collision_topology()) for y0, ob in zip(y_start, self.mesh_obstacles)]
             for y0, y1, *_ in obstacles:  # the guard's bound: the obstacles push at their own speed
                 v_max = max(v_max, float(np.sqrt(np.max(np.einsum("ij,ij->i", y1 - y0, y1 - y0)))) / h)
             skip = None
@@ -272,14 +269,10 @@ class Simulation:
 
     def _mesh_obstacles(self) -> list:
         """(positions, faces) of the triangle-mesh obstacles now (cloth.meshobstacle), [] if none."""
-        if self.contact is None:
+        if not self.mesh_obstacles:
             return []
-        from .meshobstacle import mesh_obstacle_triangles
-        meshes = mesh_obstacle_triangles(self.obstacle_set)
-        if meshes:
-            self.obstacle_set.set_time(self.time)
-            meshes = mesh_obstacle_triangles(self.obstacle_set)
-        return meshes
+        self.obstacle_set.set_time(self.time)
+        return [ob.triangles() for ob in self.mesh_obstacles]
 
     def untangle(self, stats: dict) -> None:
         """Remove crossings of the cloth with itself (with 'self_collision') and with triangle-mesh
