@@ -11,18 +11,24 @@ leaves ``final_state.npz`` (float64 positions) for experiments.replay (cloth.io.
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from tqdm import tqdm
 
-from .io.checkpoint import FINAL_STATE_FILE, remove_checkpoint, save_checkpoint, save_final_state
-from .io.manifest import write_json_atomic, write_parquet_atomic
-from .io.obj import save_obj
-from .io.recorder import Recorder
-from .screenspace import save_state
-from .simulation import PHASES, Simulation, SimulationDiverged
+from cloth.core.records import PHASES
+from cloth.io.checkpoint import FINAL_STATE_FILE, remove_checkpoint, save_checkpoint, save_final_state
+from cloth.io.manifest import write_json_atomic, write_parquet_atomic
+from cloth.io.obj import save_obj
+from cloth.io.recorder import Recorder
+from cloth.io.states import save_state
+from cloth.io.stills import OBSTACLE_RGB, mesh_triangles, obstacle_triangles, render_still
+from cloth.simulation import Simulation, SimulationDiverged
+from cloth.view.factors import face_geometry, face_view_data, spatial_view_factor
+from cloth.view.viewdep import ViewParams
 
 
 def summarize(frames: pd.DataFrame) -> dict:
@@ -54,8 +60,6 @@ def combine_crowd(character_dirs: list, out_dir: Path) -> tuple[pd.DataFrame, di
     that every character completed. summary.json: the Table 1 statistics of those sums, the
     worst status of the characters, and each character's own summary.
     """
-    import json
-
     out_dir = Path(out_dir)
     frames, summaries = [], []
     for d in character_dirs:
@@ -94,8 +98,6 @@ def _view(sim):
     """(camera now, per-face RGB by view factor) or (None, None) without a camera."""
     if sim.scene.camera is None:
         return None, None
-    from .view import face_view_data, spatial_view_factor
-    from .viewdep import ViewParams, face_geometry
     cam = sim.scene.camera.camera_at(sim.time)
     p = getattr(sim.remesher, "view", None) or ViewParams()
     d, front = face_view_data(cam, *face_geometry(sim.mesh))
@@ -109,8 +111,6 @@ def _view(sim):
 def write_still(sim, path: Path) -> Path:
     """stills/frame_NNNNN.png: the camera's view coloured by view factor and an outside view
     with the frustum (cloth.io.stills); the scene must have a camera."""
-    from .io.stills import OBSTACLE_RGB, mesh_triangles, obstacle_triangles, render_still
-
     camera, colors = _view(sim)
     obstacles = sim.obstacle_set.obstacles if sim.contact is not None else ()
     extra = [(obstacle_triangles(ob), OBSTACLE_RGB) for ob in obstacles if ob.name != "plane"]
@@ -123,7 +123,7 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
         checkpoint_every: int = 0, rows: list | None = None) -> dict:
     """Simulate `n_frames` frames, writing records into `out_dir`; returns the summary.
 
-    `states_every` N > 0 writes states/frame_NNNNN.npz (cloth.screenspace.save_state: node
+    `states_every` N > 0 writes states/frame_NNNNN.npz (cloth.io.states.save_state: node
     positions, triangles, obstacles; for the accuracy measures) at frame 0 and every N-th frame.
     `checkpoint_every` N > 0 saves the whole state and the records so far to checkpoint/state.pkl
     every N-th frame (only the latest is kept; its time counts in time_io_s, except in the
@@ -147,7 +147,6 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
         save_state(out_dir / "states" / f"frame_{sim.frame:05d}.npz", sim.mesh, sim.frame, sim.time, obstacles)
     bar = None
     if progress:
-        from tqdm import tqdm
         bar = tqdm(total=n_frames, initial=len(rows), desc=f"{scene.name}", unit="frame")
     try:
         for _ in range(n_frames - len(rows)):
@@ -194,7 +193,7 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
         if rows:
             write_parquet_atomic(out_dir / "frames.parquet", frames)
         summary = {"status": status, "message": message, "scene": scene.name, "notes": list(scene.notes),
-                   "frames_requested": int(n_frames), **summarize(frames)}
+                   "stages": sim.stages.names(), "frames_requested": int(n_frames), **summarize(frames)}
         if rows:
             summary["final_max_speed_m_s"] = float(rows[-1]["max_speed_m_s"])
             summary["final_kinetic_energy_j"] = float(rows[-1]["kinetic_energy_j"])

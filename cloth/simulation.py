@@ -1,18 +1,21 @@
 """The frame loop: sizing and remeshing (adaptive modes), then N implicit steps with contact.
 
-One frame, as in DESIGN.md section 1::
+Which stages a simulation runs is decided once, in one place, :func:`plan_stages`, from what the
+scene declares (``scene.effects``) and what the mode asks for (a remesher, buckling
+compensation); a stage that is not planned is never called and costs nothing. One frame, as in
+DESIGN.md section 1, one named stage per line::
 
-    remesh stage (mode hook; absent in mode=nonadaptive)
+    remesh            mode=adaptive | viewdep    sizing field, remesh, pop filter
+    untangle          remesh + self_collision or mesh obstacles: after a remesh that changed the
+                      mesh (and after a frame that left crossings)
+    buckling          mode's buckling (needs a camera): compression factors of eq 11
     for each of the frame's steps:
-        handles -> prescribed positions at t + h
-        implicit Euler step (force terms of the declared effects, linear solve)
-        obstacle contact (only if the scene declares 'obstacles')
-        self-collision: proximity, CCD, impact zones (only if it declares 'self_collision'), in
-            one pass with the cloth against triangle-mesh obstacles (only if it has some)
+        obstacle_contact   'obstacles': contact constraints for the solve (start of the step)
+        implicit step      force terms of the declared effects, linear solve; handles prescribed
+        obstacle_contact   'obstacles': projection out of the obstacles (end of the step)
+        collisions         self_collision and/or obstacle_ccd (triangle-mesh obstacles, with a
+                           thickness), one pass: proximity, CCD, impact zones
     per-frame record
-
-After a remesh that changed the mesh, a scene with 'self_collision' is untangled (crossings
-removed by intersection contour minimisation, cloth.untangle) before the steps.
 
 The three modes share all of this; only the remesh stage (its sizing field) differs.
 """
@@ -20,34 +23,91 @@ The three modes share all of this; only the remesh stage (its sizing field) diff
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass, fields, replace
+
 import numpy as np
 
-from .adaptive import REMESH_RECORD
-from .viewdep import VIEW_RECORD
-from .assembly import SparsityPattern
-from .forces import Bending, ForceTerm, Gravity, Membrane, Wind, element_families
-from .integrator import ContactConstraints, implicit_euler_step
-from .linsolve import SolverOptions
-from .scene import Scene
+from cloth.collision.contact import resolve_obstacle_contacts
+from cloth.collision.meshobstacle import mesh_obstacle_triangles, mesh_obstacles
+from cloth.collision.obstacles import ObstacleSet
+from cloth.collision.selfcollision import (
+    SelfCollisionParams,
+    resolve_collisions_with_obstacles,
+    resolve_self_collisions,
+)
+from cloth.collision.untangle import untangle
+from cloth.core.records import COLLISION_RECORD, PHASES, REMESH_RECORD, VIEW_RECORD
+from cloth.core.scene import Scene
+from cloth.physics.assembly import SparsityPattern
+from cloth.physics.buckling import face_alpha
+from cloth.physics.forces import Bending, ForceTerm, Gravity, Membrane, Wind, element_families
+from cloth.physics.integrator import ContactConstraints, implicit_euler_step
+from cloth.physics.linsolve import SolverOptions
+from cloth.view.factors import face_geometry, face_view_data
 
-# Phases timed in every frame record (seconds of wall time, column time_<phase>_s).
-PHASES = ("sizing", "remesh", "physics", "solve", "collisions", "io", "other")
 # A free node within (1 + CONTACT_BAND) x thickness of an obstacle at the start of a step is a
 # contact candidate for the solve (projection leaves resting nodes at exactly the thickness).
 CONTACT_BAND = 0.5
-# Columns of the self-collision record; zero in scenes without the effect.
-COLLISION_RECORD = {"self_velocity_clamped": 0, "self_proximity": 0, "self_ccd_hits": 0, "self_ccd_passes": 0,
-                    "impact_zones": 0, "impact_zone_rounds": 0, "self_collisions_left": 0,
-                    "obstacle_proximity": 0, "obstacle_ccd_hits": 0, "obstacle_collisions_left": 0,
-                    "intersections_found": 0,
-                    "untangle_iterations": 0, "intersections_left": 0, "intersection_depth_m": 0.0,
-                    "intersection_length_m": 0.0}
 # Bound of the contour-minimisation iterations after a remesh (the record says what is left).
 UNTANGLE_ITERATIONS = 30
+# Force terms in the order they are assembled (each present only when its effect is declared).
+FORCE_EFFECTS = ("membrane", "bending", "gravity", "wind")
 
 
 class SimulationDiverged(RuntimeError):
     """The state became non-finite or a node exceeded the speed limit."""
+
+
+@dataclass(frozen=True)
+class Stages:
+    """The stages a simulation runs, decided once (:func:`plan_stages`). False: never called."""
+
+    forces: tuple = ()  # force terms assembled in the implicit step, by effect name (FORCE_EFFECTS)
+    damping: bool = False  # Rayleigh damping in the implicit step ('damping')
+    remesh: bool = False  # the mode's remesh stage (mode=adaptive, viewdep)
+    untangle: bool = False  # remove crossings after a remesh (with self_collision or triangle-mesh obstacles)
+    buckling: bool = False  # compression factors of the out-of-frustum faces (the mode's buckling)
+    obstacle_contact: bool = False  # node contact with every obstacle, in the solve and after it ('obstacles')
+    obstacle_ccd: bool = False  # cloth against triangle-mesh obstacles: proximity, CCD, impact zones
+    self_collision: bool = False  # cloth against itself: proximity, CCD, impact zones ('self_collision')
+
+    def names(self) -> list[str]:
+        """The planned stages, by name (force terms as 'force:<effect>'), for records and tests."""
+        out = [f"force:{f}" for f in self.forces]
+        return out + [f.name for f in fields(self) if f.name != "forces" and getattr(self, f.name)]
+
+    def without(self, *names: str) -> Stages:
+        """This plan with the named stages switched off (an ablation; a test of a stage's effect)."""
+        switches = [f.name for f in fields(self) if f.name != "forces"]
+        unknown = set(names) - set(switches)
+        if unknown:
+            raise ValueError(f"unknown stage(s) {sorted(unknown)}; stages that switch: {switches}")
+        return replace(self, **{name: False for name in names})
+
+
+def plan_stages(scene: Scene, remesher=None, buckling=None) -> Stages:
+    """The one place where what a scene declares and what a mode asks for become stages.
+
+    Scene effects: membrane, bending, gravity, wind (force terms), damping, obstacles (node
+    contact with every obstacle; with triangle-mesh obstacles and a thickness > 0, also their
+    triangles in the step's collision pass), self_collision. Mode: a remesher (remesh, and
+    untangling after it where crossings can arise), buckling parameters (buckling).
+    """
+    effects = scene.effects
+    obstacles = "obstacles" in effects
+    meshes = obstacles and bool(mesh_obstacles(scene.obstacles))
+    self_collision = "self_collision" in effects
+    remesh = remesher is not None
+    return Stages(
+        forces=tuple(e for e in FORCE_EFFECTS if e in effects),
+        damping="damping" in effects,
+        remesh=remesh,
+        untangle=remesh and (self_collision or meshes),
+        buckling=buckling is not None,
+        obstacle_contact=obstacles,
+        obstacle_ccd=meshes and scene.thickness > 0,
+        self_collision=self_collision,
+    )
 
 
 def build_force_terms(scene: Scene) -> list[ForceTerm]:
@@ -67,22 +127,22 @@ def build_force_terms(scene: Scene) -> list[ForceTerm]:
 
 
 class Remesher:
-    """Interface of the remesh stage (cloth.adaptive.AdaptiveRemesher implements it).
+    """Interface of the remesh stage (cloth.remeshing.adaptive.AdaptiveRemesher implements it).
 
     `remesh(sim, timings, stats)` may replace `sim.scene.mesh`; when it does, it calls
     `sim.rebuild()` (masses, rest data, sparsity: only then) and returns True. It adds its
     wall time to timings['sizing'] and timings['remesh'] and its counters to `stats`.
     """
 
-    def remesh(self, sim: "Simulation", timings: dict, stats: dict) -> bool:  # pragma: no cover - interface
+    def remesh(self, sim: Simulation, timings: dict, stats: dict) -> bool:  # pragma: no cover - interface
         raise NotImplementedError
 
 
 class Simulation:
     def __init__(self, scene: Scene, solver: SolverOptions | None = None,
                  remesher: Remesher | None = None, max_speed: float = 100.0, buckling=None):
-        """`buckling` (cloth.buckling.BucklingParams or None): buckling compensation on the faces
-        outside the camera's frustum; needs `scene.camera` (a cloth.camera.CameraPath)."""
+        """`buckling` (cloth.physics.buckling.BucklingParams or None): buckling compensation on the
+        faces outside the camera's frustum; needs `scene.camera` (a cloth.view.paths.CameraPath)."""
         if not max_speed > 0:
             raise ValueError(f"max_speed must be > 0, got {max_speed}")
         if buckling is not None and scene.camera is None:
@@ -92,44 +152,45 @@ class Simulation:
         self.solver = solver or SolverOptions()
         self.remesher = remesher
         self.max_speed = float(max_speed)  # m/s: a faster node means the run has gone bad
+        self.stages = plan_stages(scene, remesher, buckling)
         self.terms = build_force_terms(scene)
-        self.damping = ("damping" in scene.effects)
-        self.contact = None
-        if "obstacles" in scene.effects:
-            from .contact import resolve_obstacle_contacts
-            from .obstacles import ObstacleSet
-            self.obstacle_set = ObstacleSet(scene.obstacles)
-            self.contact = resolve_obstacle_contacts
-        self.mesh_obstacles = []  # the triangle-mesh obstacles among them (collided per step, untangled against)
-        if self.contact is not None:
-            from .meshobstacle import TriangleMeshObstacle
-            self.mesh_obstacles = [o for o in self.obstacle_set.obstacles if isinstance(o, TriangleMeshObstacle)]
-        self.has_mesh_obstacles = bool(self.mesh_obstacles)
-        self.self_collision = None
-        if "self_collision" in scene.effects:
-            from .selfcollision import SelfCollisionParams
-            self.self_collision = SelfCollisionParams(thickness=scene.thickness, friction=scene.friction)
-        # Cloth against triangle-mesh obstacles in every step: proximity, CCD and impact zones with
-        # the obstacles' vertices as pinned nodes (cloth.selfcollision.resolve_collisions_with_obstacles;
-        # with self_collision, one pass for both). None: node-based contact only.
-        self.mesh_collision = None
-        if self.has_mesh_obstacles and scene.thickness > 0:
-            from .selfcollision import SelfCollisionParams
-            self.mesh_collision = self.self_collision or SelfCollisionParams(thickness=scene.thickness,
-                                                                             friction=scene.friction)
-        self._inside_at_start = None  # free nodes inside an obstacle at the step's start (mesh_collision skips them)
+        # What the stages use (None when their stage is not planned). The remesh stage reads
+        # `contact`, `obstacle_set` and `self_collision` to keep a remesh clear of obstacles and
+        # of crossings.
+        self.contact = resolve_obstacle_contacts if self.stages.obstacle_contact else None
+        self.obstacle_set = ObstacleSet(scene.obstacles) if self.stages.obstacle_contact else None
+        self.mesh_obstacles = mesh_obstacles(scene.obstacles) if self.stages.obstacle_contact else []
+        self.self_collision = (SelfCollisionParams(thickness=scene.thickness, friction=scene.friction)
+                               if self.stages.self_collision else None)
+        self.mesh_collision = (self.self_collision or SelfCollisionParams(thickness=scene.thickness,
+                                                                          friction=scene.friction)
+                               if self.stages.obstacle_ccd else None)
+        self._inside_at_start = None  # free nodes inside an obstacle at the step's start (obstacle_ccd skips them)
         self.frame = 0
         self.time = 0.0
         self.steps_taken = 0
         self.intersections_pending = 0  # crossings the last untangling left (it runs again next frame)
+        self.faces_compensated = 0
         self.last_energy: dict = {}
         self.rebuild()
-        if self.contact is not None:
+        if self.stages.obstacle_contact:
             self.obstacle_set.set_time(0.0)
+
+    def __setstate__(self, state: dict) -> None:
+        """Unpickle (checkpoints); a checkpoint of code before the stage plan gets its plan here."""
+        self.__dict__.update(state)
+        if "stages" not in state:
+            self.stages = plan_stages(self.scene, self.remesher, self.buckling)
+        for name, value in (("faces_compensated", 0), ("intersections_pending", 0)):
+            self.__dict__.setdefault(name, value)
 
     @property
     def mesh(self):
         return self.scene.mesh
+
+    @property
+    def has_mesh_obstacles(self) -> bool:
+        return bool(self.mesh_obstacles)
 
     def rebuild(self) -> None:
         """Refresh everything that depends on topology or rest state (after a remesh only)."""
@@ -139,13 +200,63 @@ class Simulation:
         self.last_dv = None  # warm start of the solver; its size changes with the node count
         for term in self.terms:
             term.rebuild(mesh, self.pattern)
-        self.update_buckling()
+        if self.stages.buckling:
+            self.update_buckling()
 
+    # ---- the frame -------------------------------------------------------------------------
+    def advance_frame(self) -> dict:
+        """Simulate one frame; return its record (one row of frames.parquet, without I/O time)."""
+        t_start = time.perf_counter()
+        timings = {p: 0.0 for p in PHASES}
+        stats = {"solver_iterations": 0, "solver_iterations_max": 0, "solver_residual": 0.0, "contacts": 0,
+                 **REMESH_RECORD, **VIEW_RECORD, **COLLISION_RECORD}
+        stages = self.stages
+        changed = stages.remesh and self.remesher.remesh(self, timings, stats)
+        if stages.untangle and (changed or self.intersections_pending > 0):
+            # after a remesh that changed the mesh, and in every frame after one that left
+            # crossings (the record then says what is still left, not 0)
+            self._timed(timings, "collisions", self.untangle, stats)
+        if stages.buckling:
+            self._timed(timings, "sizing", self.update_buckling)
+        for _ in range(self.scene.steps_per_frame):
+            self.step(timings, stats)
+        self.frame += 1
+        record = self.state_record()
+        record.update(stats)
+        wall = time.perf_counter() - t_start
+        for p in PHASES:
+            record[f"time_{p}_s"] = timings[p]
+        record["time_other_s"] = max(wall - sum(timings[p] for p in PHASES if p != "other"), 0.0)
+        record["wall_s"] = wall
+        return record
+
+    def step(self, timings: dict, stats: dict) -> None:
+        """One implicit step with its contact and collision stages."""
+        stages, mesh, h = self.stages, self.scene.mesh, self.scene.dt
+        collide = stages.self_collision or stages.obstacle_ccd
+        x_start = mesh.node_x.copy() if collide else None
+        y_start = self._mesh_obstacle_positions() if stages.obstacle_ccd else None
+        contacts = self._timed(timings, "collisions", self._contact_constraints) if stages.obstacle_contact else None
+        self._implicit_step(contacts, timings, stats)
+        if stages.obstacle_contact:
+            self._timed(timings, "collisions", self._project_contacts, stats)
+        if collide:  # cloth-obstacle (with obstacle_ccd) and cloth-cloth collisions, in one pass
+            self._timed(timings, "collisions", self.resolve_collisions, x_start, h, stats, y_start)
+        self._check(stats)
+
+    @staticmethod
+    def _timed(timings: dict, phase: str, stage, *args):
+        """Run `stage(*args)`, adding its wall time to timings[phase] (accumulates into timings)."""
+        t0 = time.perf_counter()
+        out = stage(*args)
+        timings[phase] += time.perf_counter() - t0
+        return out
+
+    # ---- the stages ------------------------------------------------------------------------
     def update_buckling(self) -> None:
         """Compression factors (paper eq 11) of the faces out of the frustum of the camera now."""
         if self.buckling is None:
             return
-        from .buckling import face_alpha
         mesh = self.scene.mesh
         camera = self.scene.camera.camera_at(self.time)
         out = camera.distance_to_frustum(mesh.node_x[mesh.face_nodes].mean(axis=1)) > 0
@@ -155,7 +266,6 @@ class Simulation:
                 term.alpha = alpha
         self.faces_compensated = int(np.count_nonzero(alpha < 1.0))
 
-    # ------------------------------------------------------------------------------------
     def _fixed_targets(self, t: float) -> np.ndarray | None:
         if not self.scene.handles:
             return None
@@ -164,7 +274,7 @@ class Simulation:
             x[handle.nodes] = handle.targets(t)
         return x
 
-    def _contact_constraints(self) -> ContactConstraints | None:
+    def _contact_constraints(self) -> ContactConstraints:
         """Free nodes near an obstacle now, with the nearest obstacle's normal and velocity."""
         mesh, scene = self.scene.mesh, self.scene
         free = np.flatnonzero(~mesh.node_pinned)
@@ -174,49 +284,37 @@ class Simulation:
         return ContactConstraints(free[near], np.ascontiguousarray(normal[near]),
                                   np.ascontiguousarray(vel[near]), scene.friction)
 
-    def step(self, timings: dict, stats: dict) -> None:
+    def _implicit_step(self, contacts, timings: dict, stats: dict) -> None:
+        """Implicit Euler over the force terms (physics and solve timed apart); advances time."""
         scene, mesh, h = self.scene, self.scene.mesh, self.scene.dt
         m = scene.material
-        contacts = None
-        x_start = mesh.node_x.copy() if self.self_collision is not None or self.mesh_collision is not None else None
-        y_start = self._mesh_obstacle_positions() if self.mesh_collision is not None else None
-        if self.contact is not None:
-            t0 = time.perf_counter()
-            contacts = self._contact_constraints()
-            timings["collisions"] += time.perf_counter() - t0
+        damping = self.stages.damping
         s, self.last_dv = implicit_euler_step(
             mesh, self.terms, self.pattern, h, self.time,
-            m.damping_mass if self.damping else 0.0,
-            m.damping_stiffness if self.damping else 0.0,
+            m.damping_mass if damping else 0.0,
+            m.damping_stiffness if damping else 0.0,
             self._fixed_targets(self.time + h), self.solver, self.last_dv, contacts,
         )
         self.steps_taken += 1
         # frame start + steps within it: no round-off drift over long runs, so that a frame's
         # time is exactly frame * frame_time (camera cuts and keyframes are given at such times)
         k = self.steps_taken - self.frame * scene.steps_per_frame
-        self.time = (self.frame + 1) * scene.frame_time if k == scene.steps_per_frame else self.frame * scene.frame_time + k * h
+        last = k == scene.steps_per_frame
+        self.time = (self.frame + 1) * scene.frame_time if last else self.frame * scene.frame_time + k * h
         timings["physics"] += s.time_physics_s
         timings["solve"] += s.time_solve_s
         stats["solver_iterations"] += s.iterations
         stats["solver_iterations_max"] = max(stats["solver_iterations_max"], s.iterations)
         stats["solver_residual"] = max(stats["solver_residual"], s.residual)
         self.last_energy = s.energy
-        if self.contact is not None:
-            t0 = time.perf_counter()
-            self.obstacle_set.set_time(self.time)
-            c = self.contact(mesh.node_x, mesh.node_v, mesh.node_pinned, self.obstacle_set,
-                             scene.thickness, scene.friction, h)
-            stats["contacts"] = max(stats["contacts"], int(c.get("contacts", 0)))
-            timings["collisions"] += time.perf_counter() - t0
-        if self.mesh_collision is not None:  # cloth-obstacle (and cloth-cloth) collisions in one pass
-            t0 = time.perf_counter()
-            self._resolve_self_collisions(x_start, h, stats, y_start)
-            timings["collisions"] += time.perf_counter() - t0
-        elif self.self_collision is not None:
-            t0 = time.perf_counter()
-            self._resolve_self_collisions(x_start, h, stats)
-            timings["collisions"] += time.perf_counter() - t0
-        self._check(stats)
+
+    def _project_contacts(self, stats: dict) -> None:
+        """Nodes out of the obstacles at the step's end, with friction (counts into `stats`)."""
+        mesh, scene = self.scene.mesh, self.scene
+        self.obstacle_set.set_time(self.time)
+        c = self.contact(mesh.node_x, mesh.node_v, mesh.node_pinned, self.obstacle_set,
+                         scene.thickness, scene.friction, scene.dt)
+        stats["contacts"] = max(stats["contacts"], int(c.get("contacts", 0)))
 
     def _mesh_obstacle_positions(self) -> list:
         """Vertex positions (copies) of the triangle-mesh obstacles at the current time."""
@@ -224,11 +322,10 @@ class Simulation:
             ob.set_time(self.time)  # a no-op unless the obstacles were moved since the last step
         return [ob.positions.copy() for ob in self.mesh_obstacles]
 
-    def _resolve_self_collisions(self, x_start: np.ndarray, h: float, stats: dict, y_start=None) -> None:
-        """Self-collision response of the step; with y_start (the mesh obstacles' positions at the
-        step's start) cloth-obstacle collisions too, in the same pass (cloth-cloth pairs only in
-        scenes with self_collision)."""
-        from .selfcollision import resolve_collisions_with_obstacles, resolve_self_collisions
+    def resolve_collisions(self, x_start: np.ndarray, h: float, stats: dict, y_start=None) -> None:
+        """The step's collision pass (x_start -> the current positions): cloth-cloth pairs with
+        self_collision; with y_start (the mesh obstacles' positions at the step's start, given
+        when obstacle_ccd is planned) cloth-obstacle pairs too, in the same pass. Counts into `stats`."""
         mesh = self.scene.mesh
         x_end = mesh.node_x.copy()
         v_max = float(np.sqrt(np.max(np.einsum("ij,ij->i", mesh.node_v, mesh.node_v)))) if len(mesh.node_v) else 0.0
@@ -267,20 +364,19 @@ class Simulation:
         # what the frame's worst step left (a later step may clear it; the record keeps the worst)
         stats["self_collisions_left"] = max(stats["self_collisions_left"], s["self_collisions_left"])
 
-    def _mesh_obstacles(self) -> list:
-        """(positions, faces) of the triangle-mesh obstacles now (cloth.meshobstacle), [] if none."""
+    def _mesh_obstacle_triangles(self) -> list:
+        """(positions, faces) of the triangle-mesh obstacles now, [] if none."""
         if not self.mesh_obstacles:
             return []
         self.obstacle_set.set_time(self.time)
-        return [ob.triangles() for ob in self.mesh_obstacles]
+        return mesh_obstacle_triangles(self.mesh_obstacles)
 
     def untangle(self, stats: dict) -> None:
         """Remove crossings of the cloth with itself (with 'self_collision') and with triangle-mesh
         obstacles (after a remesh); only the cloth moves. Counts into `stats`."""
-        from .untangle import untangle
         mesh = self.scene.mesh
         s = untangle(mesh.face_nodes, mesh.node_x, mesh.node_m, mesh.node_pinned, self.scene.thickness,
-                     UNTANGLE_ITERATIONS, obstacles=self._mesh_obstacles())
+                     UNTANGLE_ITERATIONS, obstacles=self._mesh_obstacle_triangles())
         stats.update(s)
         self.intersections_pending = int(s["intersections_left"])
 
@@ -295,39 +391,7 @@ class Simulation:
                 f"frame {frame}: node speed {speed:.3g} m/s exceeds max_speed = {self.max_speed:g} m/s "
                 f"at t = {self.time:.4f} s")
 
-    def advance_frame(self) -> dict:
-        """Simulate one frame; return its record (one row of frames.parquet, without I/O time)."""
-        t_start = time.perf_counter()
-        timings = {p: 0.0 for p in PHASES}
-        stats = {"solver_iterations": 0, "solver_iterations_max": 0, "solver_residual": 0.0, "contacts": 0}
-        stats.update(REMESH_RECORD)
-        stats.update(VIEW_RECORD)
-        stats.update(COLLISION_RECORD)
-        if self.remesher is not None:
-            changed = self.remesher.remesh(self, timings, stats)
-            # untangle after a remesh that changed the mesh, and in every frame after one that
-            # left crossings (the record then says what is still left, not 0)
-            pending = getattr(self, "intersections_pending", 0) > 0
-            if (changed or pending) and (self.self_collision is not None or self.has_mesh_obstacles):
-                t0 = time.perf_counter()
-                self.untangle(stats)
-                timings["collisions"] += time.perf_counter() - t0
-        if self.buckling is not None:
-            t0 = time.perf_counter()
-            self.update_buckling()
-            timings["sizing"] += time.perf_counter() - t0
-        for _ in range(self.scene.steps_per_frame):
-            self.step(timings, stats)
-        self.frame += 1
-        record = self.state_record()
-        record.update(stats)
-        wall = time.perf_counter() - t_start
-        for p in PHASES:
-            record[f"time_{p}_s"] = timings[p]
-        record["time_other_s"] = max(wall - sum(timings[p] for p in PHASES if p != "other"), 0.0)
-        record["wall_s"] = wall
-        return record
-
+    # ---- the record ------------------------------------------------------------------------
     def view_counts(self) -> dict:
         """Faces in view (in the frustum and facing the camera), back-facing in frame, out of frame.
 
@@ -337,8 +401,6 @@ class Simulation:
         if self.scene.camera is None:
             return {"faces_in_view": nan, "faces_back_facing": nan, "faces_out_of_frame": nan,
                     "faces_compensated": nan}
-        from .view import face_view_data
-        from .viewdep import face_geometry
         c, n = face_geometry(self.scene.mesh)
         d, front = face_view_data(self.scene.camera.camera_at(self.time), c, n)
         inside = d == 0

@@ -4,11 +4,11 @@
 
 Reads the per-frame states (``states/frame_NNNNN.npz``, written by the runner with
 ``output.states_every``) of every run and of the reference, rebuilds the camera path from the
-run's ``config.yaml``, renders both at every frame they both have (cloth.screenspace) and writes
+run's ``config.yaml``, renders both at every frame they both have (cloth.eval.screenspace) and writes
 into each RUN_DIR:
 
 * ``accuracy.parquet``: one row per frame, columns frame, error_px, silhouette_px, surface_px,
-  cloth_px_run, cloth_px_ref, iou, offscreen_distance_m (definitions: cloth.screenspace);
+  cloth_px_run, cloth_px_ref, iou, offscreen_distance_m (definitions: cloth.eval.screenspace);
 * ``accuracy.json``: ``<column>_mean`` and ``<column>_max`` of every numeric column (NaN frames
   left out; null when a column has no value), ``reference`` (the reference folder), ``frames``
   (frames evaluated), ``resolution`` ([width, height] of the rendered images),
@@ -29,6 +29,14 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from omegaconf import OmegaConf
+
+from cloth.eval import screenspace
+from cloth.eval.screenspace import frame_errors, offscreen_distance, render_state
+from cloth.io.manifest import write_json_atomic, write_parquet_atomic
+from cloth.io.states import load_state, merge_states
+from cloth.view.camera import ViewError
+from cloth.view.paths import path_from_config
 
 COLUMNS = ("frame", "error_px", "silhouette_px", "surface_px", "cloth_px_run", "cloth_px_ref", "iou",
            "offscreen_distance_m")
@@ -45,9 +53,7 @@ class AccuracyError(ValueError):
 
 
 def definition() -> str:
-    """The definitions of the columns, with their version (cloth.screenspace's docstring)."""
-    from cloth import screenspace
-
+    """The definitions of the columns, with their version (cloth.eval.screenspace's docstring)."""
     doc = screenspace.__doc__
     start = doc.index("Definitions (version")
     return doc[start:].strip().replace(":data:`DEFINITION_VERSION`", screenspace.DEFINITION_VERSION)
@@ -56,8 +62,6 @@ def definition() -> str:
 # ---- reading run folders -----------------------------------------------------------------------
 
 def _config(run_dir: Path) -> dict:
-    from omegaconf import OmegaConf
-
     f = run_dir / "config.yaml"
     if not f.is_file():
         raise AccuracyError(f"{run_dir}: no config.yaml (is it a run folder of experiments.run?)")
@@ -124,7 +128,8 @@ def check_pair(run_dir, ref_dir) -> list[int]:
     run_cfg, ref_cfg = _config(run_dir), _config(ref_dir)
     name = lambda c: (c.get("scene") or {}).get("name")  # noqa: E731
     if name(run_cfg) != name(ref_cfg):
-        raise AccuracyError(f"{run_dir}: scene {name(run_cfg)!r} differs from the reference's {name(ref_cfg)!r} ({ref_dir})")
+        raise AccuracyError(f"{run_dir}: scene {name(run_cfg)!r} differs from the reference's {name(ref_cfg)!r} "
+                            f"({ref_dir})")
     cam = run_cfg.get("camera")
     if not cam or cam.get("type") in (None, "none"):
         raise AccuracyError(f"{run_dir}: the run has no camera (camera: none); screen-space accuracy needs one")
@@ -161,8 +166,6 @@ def check_pair(run_dir, ref_dir) -> list[int]:
 
 
 def _load(files: list[Path]) -> dict:
-    from cloth.screenspace import load_state, merge_states
-
     return merge_states([load_state(f) for f in files])
 
 
@@ -171,17 +174,12 @@ def _load(files: list[Path]) -> dict:
 def evaluate_runs(run_dirs, ref_dir, resolution_scale: float = 1.0) -> list[pd.DataFrame]:
     """One accuracy table per run (the columns of COLUMNS, one row per frame); every run is checked
     before any work. The reference is rendered once per frame for all runs."""
-    from cloth.camera import path_from_config
-    from cloth.screenspace import frame_errors, offscreen_distance, render_state
-
     if not (isinstance(resolution_scale, (int, float)) and math.isfinite(resolution_scale) and resolution_scale > 0):
         raise AccuracyError(f"--resolution-scale must be a number > 0, got {resolution_scale!r}")
     run_dirs, ref_dir = [Path(d) for d in run_dirs], Path(ref_dir)
     frames = [check_pair(d, ref_dir) for d in run_dirs]
     ref_states = state_files(ref_dir)
     run_states = [state_files(d) for d in run_dirs]
-    from cloth.view import ViewError
-
     try:
         paths = [path_from_config(_config(d)["camera"]) for d in run_dirs]
     except (ViewError, KeyError, TypeError, ValueError) as exc:
@@ -233,8 +231,6 @@ def summarize(table: pd.DataFrame, ref_dir, resolution, resolution_scale: float)
 
 def image_resolution(run_dir, resolution_scale: float) -> tuple[int, int]:
     """[width, height] of the images rendered for a run (its camera's image times the scale)."""
-    from cloth.camera import path_from_config
-
     cam = path_from_config(_config(Path(run_dir))["camera"]).camera_at(0.0)
     h = max(int(round(cam.height * resolution_scale)), 1)
     return max(int(round(cam.width * resolution_scale)), 1), h
@@ -242,8 +238,6 @@ def image_resolution(run_dir, resolution_scale: float) -> tuple[int, int]:
 
 def write_accuracy(run_dir, table: pd.DataFrame, ref_dir, resolution_scale: float = 1.0) -> dict:
     """Write accuracy.parquet and accuracy.json into `run_dir` (atomically); returns the summary."""
-    from cloth.io.manifest import write_json_atomic, write_parquet_atomic
-
     run_dir = Path(run_dir)
     summary = summarize(table, ref_dir, image_resolution(run_dir, resolution_scale), resolution_scale)
     write_parquet_atomic(run_dir / "accuracy.parquet", table)

@@ -23,7 +23,7 @@ manifest's ``timestamp_utc``, else the config's modification time) and the other
 the table's notes as superseded. Speed-up = mean time per frame of the ``adaptive`` run of the
 same scene and scale (its default variant when there are several) / this row's mean time per
 frame. Time per frame is the frame's ``wall_s`` (every phase, I/O included, as the paper's
-Time/Frame).
+Time/Frame). The Markdown and LaTeX of the tables are made by experiments.tables.
 """
 
 from __future__ import annotations
@@ -41,6 +41,8 @@ import pandas as pd
 import yaml
 
 from cloth.io.manifest import write_parquet_atomic, write_text_atomic
+from experiments.tables import PAPER_SCENES, table1_markdown, write_table1
+from experiments.tables import PAPER_TABLE1 as PAPER_TABLE1  # re-exported: the paper's numbers, also found here
 
 REQUIRED_FRAME_COLUMNS = ("frame", "faces", "verts", "wall_s")  # what Table 1 and Fig. 8 are made of
 RUN_MARKERS = ("config.yaml", "frames.parquet", "summary.json")
@@ -55,31 +57,6 @@ STAT_COLUMNS = {"faces": "faces", "verts": "verts", "wall_s": "time"}  # frames 
 TABLE1_COLUMNS = ("scene", "scale", "mode", "variant", "frames", "faces_min", "faces_max", "faces_mean",
                   "verts_min", "verts_max", "verts_mean", "time_min_s", "time_max_s", "time_mean_s", "speedup",
                   "baseline", "run")
-PAPER_SCENES = {"karate": "Karate", "solo_dancer": "Solo Dancer", "multiple_dancers": "Multiple Dancers"}
-MODE_LABELS = {"nonadaptive": "Non-adaptive", "adaptive": "Adaptive", "viewdep": "View-dependent"}
-
-# The paper's Table 1 (Koh, Narain, O'Brien 2015, TVCG; 4 threads of a Xeon E5-2680 v2), as printed:
-# scene -> mode -> (faces min, max, mean, vertices min, max, mean, s/frame min, max, mean, speed-up).
-PAPER_TABLE1 = {
-    "karate": {
-        "nonadaptive": (123790, 123790, 123790, 63889, 63889, 63889, 136.47, 288.01, 161.44, 0.49),
-        "adaptive": (25785, 71142, 41973, 14135, 37199, 22358, 31.41, 184.39, 79.04, 1.0),
-        "viewdep": (5223, 39139, 21501, 3142, 20770, 11670, 5.52, 83.29, 33.02, 2.39),
-    },
-    "solo_dancer": {
-        "nonadaptive": (43710, 43710, 43710, 22736, 22736, 22736, 27.31, 58.09, 29.27, 0.54),
-        "adaptive": (12030, 21763, 18041, 6593, 11535, 9659, 7.78, 22.00, 15.80, 1.0),
-        "viewdep": (730, 15951, 9638, 560, 8599, 5314, 0.83, 13.81, 7.55, 2.09),
-    },
-    "multiple_dancers": {
-        "nonadaptive": (437100, 437100, 437100, 227360, 227360, 227360, 273.13, 580.85, 292.73, 0.47),
-        "adaptive": (119515, 184340, 161028, 65505, 98630, 86897, 79.97, 178.24, 136.99, 1.0),
-        "viewdep": (11216, 102945, 36339, 7619, 56285, 21228, 12.02, 82.54, 30.76, 4.45),
-    },
-}
-PAPER_COLUMNS = ("faces_min", "faces_max", "faces_mean", "verts_min", "verts_max", "verts_mean", "time_min_s",
-                 "time_max_s", "time_mean_s", "speedup")
-PAPER_SOURCE = "Koh, Narain, O'Brien 2015, Table 1"
 
 
 class AggregateError(ValueError):
@@ -173,7 +150,8 @@ def _read_yaml(path: Path) -> dict:
     try:
         cfg = yaml.safe_load(path.read_text())
     except (OSError, yaml.YAMLError) as exc:
-        raise _Bad(f"{path.name} unreadable: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
+        raise _Bad(f"{path.name} unreadable: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}") \
+            from None
     if not isinstance(cfg, dict):
         raise _Bad(f"{path.name} is not a mapping")
     return cfg
@@ -185,7 +163,7 @@ def _read_json(path: Path, what: str) -> dict:
     try:
         obj = json.loads(path.read_text())
     except (OSError, ValueError) as exc:
-        raise _Bad(f"{path.name} unreadable: {type(exc).__name__}: {exc}")
+        raise _Bad(f"{path.name} unreadable: {type(exc).__name__}: {exc}") from None
     if not isinstance(obj, dict):
         raise _Bad(f"{path.name} is not a JSON object")
     return obj
@@ -197,7 +175,8 @@ def _read_parquet(path: Path) -> pd.DataFrame:
     try:
         return pd.read_parquet(path)
     except Exception as exc:  # noqa: BLE001 - pyarrow raises several kinds for a broken file
-        raise _Bad(f"{path.name} unreadable: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
+        raise _Bad(f"{path.name} unreadable: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}") \
+            from None
 
 
 def _timestamp(path: Path) -> str:
@@ -431,134 +410,6 @@ def table1(runs: pd.DataFrame) -> pd.DataFrame:
     out = _order(pd.DataFrame(rows, columns=list(TABLE1_COLUMNS)))
     out.attrs["notes"] = sorted(set(notes))
     return out
-
-
-def paper_table1() -> pd.DataFrame:
-    """The paper's Table 1 as printed (PAPER_TABLE1), one row per scene and mode."""
-    rows = [{"scene": s, "paper_scene": PAPER_SCENES[s], "mode": m, **dict(zip(PAPER_COLUMNS, v))}
-            for s, modes in PAPER_TABLE1.items() for m, v in modes.items()]
-    return pd.DataFrame(rows)
-
-
-def _int(v) -> str:
-    return "" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{int(round(v)):,}"
-
-
-def _sec(v, digits: int) -> str:
-    return "" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.{digits}f}"
-
-
-def _x(v) -> str:
-    return "" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.2f}×"
-
-
-def _time_digits(t: pd.DataFrame) -> int:
-    """Decimals for times: the paper's 2, more when our times are short (small scale)."""
-    m = t["time_min_s"].min() if len(t) else 1.0
-    return 2 if m >= 1 else 3 if m >= 0.01 else 4
-
-
-def _md_table(header: list[str], rows: list[list[str]], align: str) -> str:
-    lines = ["| " + " | ".join(header) + " |", "| " + " | ".join("---:" if a == "r" else "---" for a in align) + " |"]
-    lines += ["| " + " | ".join(r) + " |" for r in rows]
-    return "\n".join(lines)
-
-
-def _ours_cells(t: pd.DataFrame) -> tuple[list[str], list[list[str]], str]:
-    d = _time_digits(t)
-    header = ["scene", "scale", "mode", "variant", "frames", "faces min", "faces max", "faces mean", "verts min",
-              "verts max", "verts mean", "s/frame min", "s/frame max", "s/frame mean", "speed-up"]
-    rows = [[r.scene, r.scale, MODE_LABELS.get(r.mode, r.mode), r.variant if r.variant != r.mode else "",
-             str(r.frames), _int(r.faces_min), _int(r.faces_max), _int(r.faces_mean), _int(r.verts_min),
-             _int(r.verts_max), _int(r.verts_mean), _sec(r.time_min_s, d), _sec(r.time_max_s, d),
-             _sec(r.time_mean_s, d), _x(r.speedup)] for r in t.itertuples()]
-    return header, rows, "llllrrrrrrrrrrr"
-
-
-def _paper_cells(p: pd.DataFrame) -> tuple[list[str], list[list[str]], str]:
-    header = ["scene", "mode", "faces min", "faces max", "faces mean", "verts min", "verts max", "verts mean",
-              "s/frame min", "s/frame max", "s/frame mean", "speed-up"]
-    rows = [[r.paper_scene, MODE_LABELS[r.mode], _int(r.faces_min), _int(r.faces_max), _int(r.faces_mean),
-             _int(r.verts_min), _int(r.verts_max), _int(r.verts_mean), _sec(r.time_min_s, 2), _sec(r.time_max_s, 2),
-             _sec(r.time_mean_s, 2), _x(r.speedup)] for r in p.itertuples()]
-    return header, rows, "llrrrrrrrrrr"
-
-
-def side_by_side(ours: pd.DataFrame, paper: pd.DataFrame | None = None) -> pd.DataFrame:
-    """Our rows of the paper's scenes (default variants) paired with the paper's row of the same
-    scene and mode: faces mean, time per frame mean and speed-up, ours and the paper's."""
-    paper = paper_table1() if paper is None else paper
-    mine = ours[ours["scene"].isin(list(PAPER_SCENES)) & ((ours["variant"] == "") | (ours["variant"] == ours["mode"]))]
-    merged = mine.merge(paper, on=["scene", "mode"], how="inner", suffixes=("", "_paper"))
-    return merged[["scene", "scale", "mode", "faces_mean", "faces_mean_paper", "time_mean_s", "time_mean_s_paper",
-                   "speedup", "speedup_paper"]]
-
-
-def table1_markdown(ours: pd.DataFrame, paper: pd.DataFrame | None = None) -> str:
-    """Our Table 1, the paper's beside it, and the two side by side where scenes match."""
-    paper = paper_table1() if paper is None else paper
-    out = ["## Table 1: this project", ""]
-    if len(ours):
-        out.append(_md_table(*_ours_cells(ours)))
-    else:
-        out.append("(no runs)")
-    out += ["", "Time per frame in seconds (wall clock, every phase); speed-up = mean time per frame of the "
-            "adaptive run of the same scene and scale / this row's.", ""]
-    for n in ours.attrs.get("notes", []):
-        out.append(f"- note: {n}")
-    out += ["", f"## Table 1: the paper ({PAPER_SOURCE}; 4 threads of a Xeon E5-2680 v2)", "",
-            _md_table(*_paper_cells(paper)), ""]
-    sbs = side_by_side(ours, paper)
-    if len(sbs):
-        d = _time_digits(ours)
-        rows = [[r.scene, r.scale, MODE_LABELS.get(r.mode, r.mode), _int(r.faces_mean), _int(r.faces_mean_paper),
-                 _sec(r.time_mean_s, d), _sec(r.time_mean_s_paper, 2), _x(r.speedup), _x(r.speedup_paper)]
-                for r in sbs.itertuples()]
-        out += ["## Side by side (means)", "", _md_table(
-            ["scene", "scale", "mode", "faces (ours)", "faces (paper)", "s/frame (ours)", "s/frame (paper)",
-             "speed-up (ours)", "speed-up (paper)"], rows, "lllrrrrrr"), ""]
-    return "\n".join(out) + "\n"
-
-
-_TEX = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_", "{": r"\{",
-        "}": r"\}", "×": r"$\times$", ",": "{,}"}
-
-
-def _tex_escape(s: str) -> str:
-    """LaTeX-safe text (a thousands comma as {,} so that it is not followed by a space)."""
-    return "".join(_TEX.get(c, c) for c in s)
-
-
-def _tex_table(header, rows, align, caption: str) -> str:
-    lines = [r"\begin{table}[t]", r"\centering", rf"\caption{{{_tex_escape(caption).replace('{,}', ',')}}}",
-             rf"\begin{{tabular}}{{{align}}}", r"\toprule", " & ".join(_tex_escape(h) for h in header) + r" \\",
-             r"\midrule"]
-    lines += [" & ".join(_tex_escape(c) for c in r) + r" \\" for r in rows]
-    lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}"]
-    return "\n".join(lines)
-
-
-def table1_latex(ours: pd.DataFrame, paper: pd.DataFrame | None = None) -> str:
-    """Two booktabs tables: ours and the paper's."""
-    paper = paper_table1() if paper is None else paper
-    parts = ["% Table 1 of this project and of the paper (needs \\usepackage{booktabs})"]
-    if len(ours):
-        parts.append(_tex_table(*_ours_cells(ours), "Table 1, this project: faces, vertices and time per frame "
-                                "(s); speed-up against adaptive on the same scene."))
-    parts.append(_tex_table(*_paper_cells(paper), f"Table 1 of the paper ({PAPER_SOURCE})."))
-    return "\n\n".join(parts) + "\n"
-
-
-def write_table1(ours: pd.DataFrame, out_dir, stem: str = "table1") -> list[Path]:
-    """table1.csv (ours), table1_paper.csv, table1.md and table1.tex (both tables), atomically."""
-    out_dir = Path(out_dir)
-    paper = paper_table1()
-    files = [out_dir / f"{stem}.csv", out_dir / f"{stem}_paper.csv", out_dir / f"{stem}.md", out_dir / f"{stem}.tex"]
-    write_text_atomic(files[0], ours.to_csv(index=False))
-    write_text_atomic(files[1], paper.assign(source=PAPER_SOURCE).to_csv(index=False))
-    write_text_atomic(files[2], table1_markdown(ours, paper))
-    write_text_atomic(files[3], table1_latex(ours, paper))
-    return files
 
 
 def write_runs(runset: RunSet, out_dir) -> list[Path]:

@@ -22,20 +22,22 @@ import numpy as np
 import pandas as pd
 from numba.core.registry import CPUDispatcher
 
-import cloth.assembly
-import cloth.contact
-import cloth.forces
-import cloth.integrator
-import cloth.linsolve
-import cloth.obstacles
+import cloth.collision.contact
+import cloth.collision.obstacles
+import cloth.physics.assembly
+import cloth.physics.forces
+import cloth.physics.integrator
+import cloth.physics.linsolve
+from cloth.core.material import Material
+from cloth.core.records import PHASES
 from cloth.io.manifest import environment_manifest, write_json_atomic, write_text_atomic
-from cloth.material import Material
-from cloth.scenes import build_scene
-from cloth.simulation import PHASES, Simulation
+from cloth.scenes.registry import build_scene
+from cloth.simulation import Simulation
 
 COTTON = dict(name="cotton", density=0.12, youngs_modulus=2.0e3, poisson_ratio=0.3,
               bending_stiffness=5e-6, damping_mass=0.05, damping_stiffness=2e-3)
-KERNEL_MODULES = (cloth.assembly, cloth.contact, cloth.forces, cloth.integrator, cloth.linsolve, cloth.obstacles)
+KERNEL_MODULES = (cloth.physics.assembly, cloth.collision.contact, cloth.physics.forces, cloth.physics.integrator,
+                  cloth.physics.linsolve, cloth.collision.obstacles)
 
 
 class KernelClock:

@@ -8,6 +8,21 @@ from __future__ import annotations
 
 from omegaconf import DictConfig, OmegaConf
 
+from cloth.core.material import Material, MaterialError
+from cloth.core.mesh import MeshError
+from cloth.core.scene import SceneError
+from cloth.physics.buckling import BucklingParams
+from cloth.physics.linsolve import SolverOptions
+from cloth.remeshing.adaptive import AdaptiveRemesher
+from cloth.remeshing.popfilter import PopFilterParams
+from cloth.remeshing.remesh import RemeshParams
+from cloth.remeshing.sizing import SizingParams
+from cloth.scenes.registry import CROWDS, SCENES, build_scene
+from cloth.simulation import Simulation
+from cloth.view.camera import ViewError
+from cloth.view.paths import path_from_config
+from cloth.view.viewdep import ViewDependentRemesher, ViewParams
+
 IMPLEMENTED_MODES = ("nonadaptive", "adaptive", "viewdep")
 REMESHING_MODES = ("adaptive", "viewdep")
 
@@ -22,8 +37,6 @@ def _require(cond: bool, key: str, msg: str) -> None:
 
 
 def build_material(cfg: DictConfig):
-    from cloth.material import Material, MaterialError
-
     m = OmegaConf.to_container(cfg.material, resolve=True)
     try:
         return Material(**m)
@@ -44,9 +57,6 @@ def _params(cls, values: dict, key: str):
 
 def build_camera(cfg: DictConfig):
     """The camera path of `cfg.camera` (None for camera=none); ConfigError names a bad camera.* key."""
-    from cloth.camera import path_from_config
-    from cloth.view import ViewError
-
     cam = cfg.get("camera")
     if cam is None or cam.get("type") in (None, "none"):
         return None
@@ -58,8 +68,6 @@ def build_camera(cfg: DictConfig):
 
 def build_buckling(mode_cfg: DictConfig, camera):
     """BucklingParams from mode.buckling (null: off); it needs a camera (out-of-frustum faces)."""
-    from cloth.buckling import BucklingParams
-
     b = mode_cfg.get("buckling")
     if b is None:
         return None
@@ -72,11 +80,6 @@ def build_buckling(mode_cfg: DictConfig, camera):
 def build_remesher(mode_cfg: DictConfig, sizing_overrides: dict, camera=None, frame_time: float = 0.04,
                    scene_view: dict | None = None):
     """The remesh stage of a remeshing mode (ConfigError names a bad mode.* key)."""
-    from cloth.adaptive import AdaptiveRemesher
-    from cloth.popfilter import PopFilterParams
-    from cloth.remesh import RemeshParams
-    from cloth.sizing import SizingParams
-
     sizing = dict(OmegaConf.to_container(mode_cfg.sizing, resolve=True))
     sizing.update(sizing_overrides)
     remesh = OmegaConf.to_container(mode_cfg.remesh, resolve=True)
@@ -92,8 +95,6 @@ def build_remesher(mode_cfg: DictConfig, sizing_overrides: dict, camera=None, fr
     )
     if mode_cfg.name != "viewdep":
         return AdaptiveRemesher(**common)
-    from cloth.viewdep import ViewDependentRemesher, ViewParams
-
     _require(camera is not None, "camera",
              "mode=viewdep needs a camera path; choose one with camera=<name> (conf/camera/), e.g. camera=sheet_half")
     view_cfg = OmegaConf.to_container(mode_cfg.view, resolve=True)
@@ -104,8 +105,6 @@ def build_remesher(mode_cfg: DictConfig, sizing_overrides: dict, camera=None, fr
 
 def crowd_size(cfg: DictConfig) -> int | None:
     """Number of characters of a crowd scene (each its own Simulation), None for other scenes."""
-    from cloth.scenes import CROWDS
-
     if cfg.scene.name not in CROWDS:
         return None
     count = cfg.scene.params.get("count", 10)
@@ -118,15 +117,10 @@ def crowd_size(cfg: DictConfig) -> int | None:
 def build_simulation(cfg: DictConfig, character: int | None = None):
     """Return (Simulation, n_frames); raises ConfigError naming the key of a bad value.
 
-    For a crowd scene (cloth.scenes.CROWDS) this is the simulation of one `character` (0 if None).
+    For a crowd scene (cloth.scenes.registry.CROWDS) this is the simulation of one `character` (0 if None).
     """
-    from cloth.linsolve import SolverOptions
-    from cloth.mesh import MeshError
-    from cloth.scene import SceneError
-    from cloth.scenes import CROWDS, SCENES, build_scene
-    from cloth.simulation import Simulation
-
-    _require(isinstance(cfg.get("frames"), int) and cfg.frames >= 1, "frames", f"must be an integer >= 1, got {cfg.get('frames')!r}")
+    _require(isinstance(cfg.get("frames"), int) and cfg.frames >= 1, "frames",
+             f"must be an integer >= 1, got {cfg.get('frames')!r}")
     _require(isinstance(cfg.get("seed"), int), "seed", f"must be an integer, got {cfg.get('seed')!r}")
     _require(cfg.get("max_speed", 0) > 0, "max_speed", f"must be > 0 m/s, got {cfg.get('max_speed')!r}")
     mode = cfg.mode.name
@@ -140,7 +134,8 @@ def build_simulation(cfg: DictConfig, character: int | None = None):
     params.update(OmegaConf.to_container(scales[cfg.scale], resolve=True))
     reference = params.pop("reference", None)
     if cfg.get("reference", False):  # the fine nonadaptive run that accuracy is measured against
-        _require(mode == "nonadaptive", "reference", f"a reference run is nonadaptive (mode=nonadaptive), got mode={mode}")
+        _require(mode == "nonadaptive", "reference",
+                 f"a reference run is nonadaptive (mode=nonadaptive), got mode={mode}")
         _require(isinstance(reference, dict), "reference",
                  f"scene {name!r} has no reference preset at scale {cfg.scale!r} (scene.scales.{cfg.scale}.reference)")
         params.update(reference)

@@ -15,6 +15,7 @@ A failure in either is reported and does not undo the runs: the folders stay as 
 
 from __future__ import annotations
 
+import json
 import sys
 import traceback
 from pathlib import Path
@@ -23,6 +24,8 @@ import yaml
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
+from experiments.accuracy import evaluate_runs, write_accuracy
+
 
 def run_folders(sweep_dir: Path) -> list[Path]:
     """The run folders directly under a multirun's sweep directory (those with a config.yaml)."""
@@ -30,7 +33,6 @@ def run_folders(sweep_dir: Path) -> list[Path]:
 
 
 def _completed(run: Path) -> bool:
-    import json
     try:
         return json.loads((run / "summary.json").read_text()).get("status") == "completed"
     except (OSError, ValueError):
@@ -40,8 +42,6 @@ def _completed(run: Path) -> bool:
 def measure_accuracy(sweep_dir: Path, log=print) -> int:
     """Measure every completed run against its scene's reference run in `sweep_dir`; returns how
     many runs were measured (0 when the study has no reference)."""
-    from experiments.accuracy import evaluate_runs, write_accuracy
-
     runs = run_folders(sweep_dir)
     cfgs = {r: yaml.safe_load((r / "config.yaml").read_text()) for r in runs}
     measured = 0
@@ -63,7 +63,9 @@ def measure_accuracy(sweep_dir: Path, log=print) -> int:
 
 def make_figures(sweep_dir: Path, log=print) -> Path:
     """All tables and figures of the study, into <sweep_dir>/figures."""
-    from paper_figures.__main__ import main as figures_main
+    # paper_figures loads matplotlib.pyplot: ~1-2 s (python -X importtime), and Hydra unpickles this
+    # callback in every job process of a study; only the end of the multirun needs the figures
+    from paper_figures.__main__ import main as figures_main  # noqa: PLC0415 - import cost, above
 
     out = Path(sweep_dir) / "figures"
     figures_main([str(sweep_dir), "--out", str(out)])

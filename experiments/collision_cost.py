@@ -4,11 +4,12 @@ and how it grows with the number of faces.
     python -m experiments.collision_cost [--frames 40] [--resolutions 24 48 96]
 
 Runs `crushed_sheet` (nonadaptive, one run per resolution: dense self-contact at a fixed face
-count; then adaptive, where untangling and the remesh's crossing guard add to it) and `solo_dancer` (adaptive, as declared and with self_collision added to its effects;
-a run that diverges is measured over the frames before it) and prints one row
-per run: faces, seconds per frame, seconds per frame in collisions (time_collisions_s: obstacle
-contact, self-collision within the steps and untangling after remeshes) and its share, with the
-growth of the collision time against the growth of faces between consecutive resolutions.
+count; then adaptive, where untangling and the remesh's crossing guard add to it) and
+`solo_dancer` (adaptive, as declared and with self_collision added to its effects; a run that
+diverges is measured over the frames before it) and prints one row per run: faces, seconds per
+frame, seconds per frame in collisions (time_collisions_s: obstacle contact, self-collision
+within the steps and untangling after remeshes) and its share, with the growth of the collision
+time against the growth of faces between consecutive resolutions.
 Writes <out>/<timestamp>/table.csv (--out, default results/collision_cost).
 """
 
@@ -40,10 +41,12 @@ def run(overrides: list, frames: int, warmup: int = 1) -> dict:
     except SimulationDiverged as exc:  # the frames before it still measure the cost
         error = str(exc)
     df = pd.DataFrame(rows).iloc[warmup:]
-    return {"frames_run": len(rows), "error": error, "faces_mean": float(df.faces.mean()), "s_per_frame": float(df.wall_s.mean()),
+    return {"frames_run": len(rows), "error": error, "faces_mean": float(df.faces.mean()),
+            "s_per_frame": float(df.wall_s.mean()),
             "collision_s_per_frame": float(df.time_collisions_s.mean()),
             "collision_share": float(df.time_collisions_s.sum() / df.wall_s.sum()),
-            "self_proximity_max": int(df.self_proximity.max()), "impact_zone_rounds_max": int(df.impact_zone_rounds.max()),
+            "self_proximity_max": int(df.self_proximity.max()),
+            "impact_zone_rounds_max": int(df.impact_zone_rounds.max()),
             "intersections_found_max": int(df.intersections_found.max()),
             "left_max": int(max(df.intersections_left.max(), df.self_collisions_left.max()))}
 

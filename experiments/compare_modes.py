@@ -6,8 +6,9 @@ issues, item 7 of each).
 
 The nonadaptive mesh of each scale preset has the edge length of the adaptive's finest edge
 (scene.scales.<scale>.sizing.size_min). Every mode sees the same camera (DEFAULT_CAMERAS, a camera
-that frames part of the cloth, or the scene's own camera work for the character scenes); only mode=viewdep uses it for sizing, the others for the records
-(faces in view). Writes <out>/<timestamp>/frames.parquet (--out, default results/compare_modes) (every frame of every
+that frames part of the cloth, or the scene's own camera work for the character scenes); only
+mode=viewdep uses it for sizing, the others for the records (faces in view). Writes
+<out>/<timestamp>/frames.parquet (--out, default results/compare_modes) (every frame of every
 run) and table.csv / table.md (faces, faces in view and time per frame, min/max/mean; speed-ups
 over nonadaptive and over adaptive; share of frame time per phase) and prints the table.
 """
@@ -99,7 +100,8 @@ def main(argv=None) -> None:
         for mode in args.modes:
             df = run(scene, mode, args.frames, args.scale, cameras.get(scene))
             runs.append(df)
-            print(f"{scene:16s} {mode:12s} done: {df.faces.mean():8.0f} faces, {df.wall_s.iloc[args.warmup:].mean():.3f} s/frame")
+            print(f"{scene:16s} {mode:12s} done: {df.faces.mean():8.0f} faces, "
+                  f"{df.wall_s.iloc[args.warmup:].mean():.3f} s/frame")
     frames = pd.concat(runs, ignore_index=True)
     frames.to_parquet(out_dir / "frames.parquet")
     t = table(frames[frames["frame"] > args.warmup])

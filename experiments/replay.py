@@ -48,6 +48,13 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from omegaconf import OmegaConf
+
+from cloth.io.checkpoint import FINAL_STATE_FILE, CheckpointError, load_final_state
+from cloth.io.manifest import write_json_atomic
+from cloth.simulation import SimulationDiverged
+from experiments.build import ConfigError, build_simulation, crowd_size
+from experiments.run import run_from_config
 
 # Relative difference a replay accepts by default: none (bit-identical; see the module docstring).
 REPLAY_RTOL = 0.0
@@ -137,8 +144,6 @@ def _py(v):
 
 def compare_final_states(original_dir: Path, replay_dir: Path, rtol: float = REPLAY_RTOL) -> dict:
     """Compare final_state.npz of two run folders: node positions (and counts, frame)."""
-    from cloth.io.checkpoint import FINAL_STATE_FILE, CheckpointError, load_final_state
-
     try:
         a = load_final_state(original_dir / FINAL_STATE_FILE)
     except CheckpointError as exc:
@@ -208,13 +213,6 @@ def replay(run_dir, out=None, frames: int | None = None, rtol: float = REPLAY_RT
 
     Raises ReplayError (before any work) on bad input or a config the current code rejects.
     """
-    from omegaconf import OmegaConf
-
-    from cloth.io.manifest import write_json_atomic
-    from cloth.simulation import SimulationDiverged
-    from experiments.build import ConfigError, build_simulation, crowd_size
-    from experiments.run import run_from_config
-
     run_dir = Path(run_dir)
     out = Path(out) if out is not None else None
     original = _check_inputs(run_dir, out, frames, rtol)

@@ -34,7 +34,16 @@ import json
 import sys
 from pathlib import Path
 
+import pandas as pd
+from joblib import Parallel, delayed
 from omegaconf import DictConfig, OmegaConf
+
+from cloth.io.checkpoint import CHECKPOINT_DIR, CHECKPOINT_INFO, CheckpointError, checkpoint_path, load_checkpoint
+from cloth.io.manifest import code_version, environment_manifest, write_json_atomic, write_parquet_atomic
+from cloth.runner import combine_crowd, run
+from cloth.simulation import SimulationDiverged
+from experiments.build import ConfigError, crowd_size
+from experiments.run import checkpoint_every, make_recorder, run_character
 
 
 class ResumeError(RuntimeError):
@@ -68,15 +77,11 @@ def _refuse_finished(run_dir: Path, status: str | None) -> None:
 
 def _options(cfg: DictConfig) -> dict:
     """The output options of cloth.runner.run, as experiments.run passes them."""
-    from experiments.run import checkpoint_every
-
     return dict(obj_every=int(cfg.output.obj_every), stills_every=int(cfg.output.get("stills_every", 0)),
                 states_every=int(cfg.output.get("states_every", 1)), checkpoint_every=checkpoint_every(cfg))
 
 
 def _code_warning(run_dir: Path, code: dict) -> str | None:
-    from cloth.io.manifest import code_version
-
     now = code_version()
     keys = ("git_commit", "git_dirty", "git_diff_sha1", "python", "packages")
     diff = [k for k in keys if code.get(k) != now.get(k)]
@@ -89,8 +94,6 @@ def _code_warning(run_dir: Path, code: dict) -> str | None:
 
 def _record_resume(manifest_dir: Path, frame: int, seed: int) -> str | None:
     """Append this resume to manifest.json's `resumes`; return the run's recording id."""
-    from cloth.io.manifest import environment_manifest, write_json_atomic
-
     path = manifest_dir / "manifest.json"
     try:
         manifest = json.loads(path.read_text())
@@ -105,28 +108,18 @@ def _record_resume(manifest_dir: Path, frame: int, seed: int) -> str | None:
 def _continue(cfg: DictConfig, run_dir: Path, ckpt, recording_id, progress: bool, root: str = "world",
               log_camera: bool = True) -> dict:
     """Cut frames.parquet back to the checkpoint and run on to cfg.frames in the same folder."""
-    import pandas as pd
-
-    from cloth.io.manifest import write_parquet_atomic
-    from cloth.runner import run
-    from experiments.run import _recorder
-
     options = _options(cfg)
     if ckpt.rows:
         write_parquet_atomic(run_dir / "frames.parquet", pd.DataFrame(ckpt.rows))
     else:
         (run_dir / "frames.parquet").unlink(missing_ok=True)
-    recorder = _recorder(cfg, run_dir, root=root, recording_id=recording_id, log_camera=log_camera,
+    recorder = make_recorder(cfg, run_dir, root=root, recording_id=recording_id, log_camera=log_camera,
                          name=f"recording_from_{ckpt.frame:05d}.rrd")
     return run(ckpt.sim, int(cfg.frames), run_dir, recorder=recorder, progress=progress, rows=ckpt.rows, **options)
 
 
 def resume_character(config_yaml: str, character: int, out_dir: str, recording_id: str | None) -> dict:
     """One character of a crowd, in a worker process: on from its checkpoint, or from the start."""
-    from cloth.io.checkpoint import checkpoint_path, load_checkpoint
-    from cloth.simulation import SimulationDiverged
-    from experiments.run import run_character
-
     out = Path(out_dir)
     status = _status(out)
     if status in ("completed", "diverged"):
@@ -146,10 +139,6 @@ def resume_character(config_yaml: str, character: int, out_dir: str, recording_i
 
 
 def resume_crowd(cfg: DictConfig, run_dir: Path, count: int) -> dict:
-    from joblib import Parallel, delayed
-
-    from cloth.io.checkpoint import checkpoint_path
-    from cloth.runner import combine_crowd
 
     dirs = [run_dir / f"dancer_{i:02d}" for i in range(count)]
     status = [_status(d) for d in dirs]
@@ -160,7 +149,7 @@ def resume_crowd(cfg: DictConfig, run_dir: Path, count: int) -> dict:
     config_yaml = OmegaConf.to_yaml(cfg, resolve=True)
     recording_id = None
     if todo:
-        first = min((i for i in todo if checkpoint_path(dirs[i]).is_file()))
+        first = min(i for i in todo if checkpoint_path(dirs[i]).is_file())
         recording_id = _record_resume(run_dir, _checkpoint_frame(dirs[first]), int(cfg.seed))
     args = [(config_yaml, i, str(dirs[i]), recording_id) for i in todo]
     jobs = min(int(cfg.crowd_jobs), max(len(args), 1))
@@ -176,8 +165,6 @@ def resume_crowd(cfg: DictConfig, run_dir: Path, count: int) -> dict:
 
 
 def _checkpoint_frame(run_dir: Path) -> int:
-    from cloth.io.checkpoint import CHECKPOINT_DIR, CHECKPOINT_INFO
-
     try:
         return int(json.loads((run_dir / CHECKPOINT_DIR / CHECKPOINT_INFO).read_text())["frame"])
     except (OSError, ValueError, KeyError):
@@ -190,9 +177,6 @@ def resume(run_dir, progress: bool | None = None) -> dict:
     Raises ResumeError (before any work) when the folder cannot be resumed; re-raises
     SimulationDiverged as cloth.runner.run does.
     """
-    from cloth.io.checkpoint import CheckpointError, load_checkpoint
-    from experiments.build import ConfigError, crowd_size
-
     run_dir = Path(run_dir)
     cfg = _load_config(run_dir)
     _refuse_finished(run_dir, _status(run_dir))
@@ -218,8 +202,6 @@ def resume(run_dir, progress: bool | None = None) -> dict:
 
 
 def main(argv=None) -> int:
-    from cloth.simulation import SimulationDiverged
-
     parser = argparse.ArgumentParser(prog="python -m experiments.resume", description=__doc__.split("\n")[0])
     parser.add_argument("run_dir", type=Path, help="the run folder of a killed run (has checkpoint/state.pkl)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

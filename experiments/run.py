@@ -15,27 +15,38 @@ cloth.runner.combine_crowd). Each character's results are those of running it al
 
 from __future__ import annotations
 
+import json
+import re
 import sys
+import uuid
 from pathlib import Path
 
 import hydra
+from hydra.types import RunMode
+from joblib import Parallel, delayed
 from omegaconf import DictConfig, OmegaConf
 
+from cloth.io.manifest import environment_manifest, write_json_atomic, write_text_atomic
+from cloth.io.recorder import RerunRecorder
+from cloth.simulation import SimulationDiverged
 from experiments.build import ConfigError, build_simulation, crowd_size
 
+# cloth.runner is imported where it is used: this module is the command line, and a mistyped
+# choice (`scene=nope`, checked by unknown_choice before Hydra composes) is answered before any
+# run. cloth.runner adds ~0.6 s (python -X importtime, on top of the imports above: pandas, tqdm,
+# the writers of a run) to the ~2.5 s of that answer.
 
-def _recorder(cfg: DictConfig, out_dir: Path, root: str = "world", recording_id=None, log_camera=True,
-              name: str = "recording.rrd"):
+
+def make_recorder(cfg: DictConfig, out_dir: Path, root: str = "world", recording_id=None, log_camera=True,
+                  name: str = "recording.rrd"):
+    """The run's Rerun recorder (out_dir/name), or None with output.rerun=false."""
     if not cfg.output.rerun:
         return None
-    from cloth.io.recorder import RerunRecorder
     return RerunRecorder(out_dir / name, app_id=f"cloth_{cfg.scene.name}", root=root,
                          recording_id=recording_id, log_camera=log_camera)
 
 
 def _write_inputs(cfg: DictConfig, out_dir: Path, recording_id: str | None = None) -> None:
-    from cloth.io.manifest import environment_manifest, write_json_atomic, write_text_atomic
-
     out_dir.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out_dir / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
     # the Rerun recording id: a resumed run continues the recording under the same id
@@ -52,30 +63,24 @@ def checkpoint_every(cfg: DictConfig) -> int:
 
 def run_character(config_yaml: str, character: int, out_dir: str, recording_id: str) -> dict:
     """One character of a crowd, in a worker process: rebuild it from the resolved config and run."""
-    from cloth.runner import run
-    from cloth.simulation import SimulationDiverged
+    from cloth.runner import run  # noqa: PLC0415 - import cost (module note)
 
     cfg = OmegaConf.create(config_yaml)
     sim, n_frames = build_simulation(cfg, character=character)
     out = Path(out_dir)
-    recorder = _recorder(cfg, out, root=f"world/dancer_{character:02d}", recording_id=recording_id,
-                         log_camera=character == 0)
+    recorder = make_recorder(cfg, out, root=f"world/dancer_{character:02d}", recording_id=recording_id,
+                             log_camera=character == 0)
     try:
         return run(sim, n_frames, out, recorder=recorder, obj_every=int(cfg.output.obj_every), progress=False,
                    stills_every=int(cfg.output.get("stills_every", 0)),
                    states_every=int(cfg.output.get("states_every", 1)), checkpoint_every=checkpoint_every(cfg))
     except SimulationDiverged:  # its summary says so; the other characters go on
-        import json
         return json.loads((out / "summary.json").read_text())
 
 
 def run_crowd(cfg: DictConfig, out_dir: Path, count: int) -> dict:
     """Every character of a crowd in parallel processes, then the combined records."""
-    import uuid
-
-    from joblib import Parallel, delayed
-
-    from cloth.runner import combine_crowd
+    from cloth.runner import combine_crowd  # noqa: PLC0415 - import cost (module note)
 
     build_simulation(cfg, character=0)  # every config check, before any output
     checkpoint_every(cfg)
@@ -98,9 +103,7 @@ def run_crowd(cfg: DictConfig, out_dir: Path, count: int) -> dict:
 
 def run_from_config(cfg: DictConfig, out_dir: Path) -> dict:
     """Validate, build, run and record; returns the summary (raises ConfigError first if bad)."""
-    import uuid
-
-    from cloth.runner import run
+    from cloth.runner import run  # noqa: PLC0415 - import cost (module note)
 
     count = crowd_size(cfg)
     if count is not None:
@@ -109,7 +112,7 @@ def run_from_config(cfg: DictConfig, out_dir: Path) -> dict:
     every = checkpoint_every(cfg)
     recording_id = str(uuid.uuid4())
     _write_inputs(cfg, out_dir, recording_id)
-    return run(sim, n_frames, out_dir, recorder=_recorder(cfg, out_dir, recording_id=recording_id),
+    return run(sim, n_frames, out_dir, recorder=make_recorder(cfg, out_dir, recording_id=recording_id),
                obj_every=int(cfg.output.obj_every),
                progress=bool(cfg.output.progress), stills_every=int(cfg.output.get("stills_every", 0)),
                states_every=int(cfg.output.get("states_every", 1)), checkpoint_every=every)
@@ -117,10 +120,6 @@ def run_from_config(cfg: DictConfig, out_dir: Path) -> dict:
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
-    from cloth.simulation import SimulationDiverged
-
-    from hydra.types import RunMode
-
     hydra_cfg = hydra.core.hydra_config.HydraConfig.get()
     out_dir = Path(hydra_cfg.runtime.output_dir)
     # In a multirun a run that goes bad must not stop the others: its summary.json says
@@ -160,8 +159,6 @@ def unknown_choice(overrides: list[str], conf_dir: Path = CONF_DIR) -> str | Non
     (``scene=nope``, ``material=silk``), or None. Checked before Hydra composes, so that the
     error is one line naming the key, not Hydra's report with its search path. Sweep values
     (``material=cotton,denim``) are checked one by one; Hydra's sweep functions are left to it."""
-    import re
-
     for arg in overrides:
         m = re.fullmatch(r"[+~]{0,2}([A-Za-z_]\w*)=(.*)", arg)
         if not m or not (conf_dir / m.group(1)).is_dir():

@@ -4,8 +4,9 @@ energy bounded, no intersection left and no face below the quality bound.
     python -m experiments.stability [--scale paper] [--frames 100] [--cases crushed_sheet karate_2x] [--out DIR]
 
 runs the cases (the larger versions with --scale paper) and writes
-<out>/<timestamp>/table.csv and table.md (default out: results/stability) (one row per case: the checks and the figures behind
-them). tests/stability/ runs the same cases at scale=small with fewer frames.
+<out>/<timestamp>/table.csv and table.md (default out: results/stability) (one row per case: the
+checks and the figures behind them). tests/stability/ runs the same cases at scale=small with
+fewer frames.
 
 Each case is a scene and mode with a few overrides:
 
@@ -18,7 +19,7 @@ Each case is a scene and mode with a few overrides:
 - karate_2x: the karate motion at twice its speed (layered skirts with self-collision);
 - crushed_sheet: a strip collapsed into folds and pressed between two planes (dense self-contact);
 - crushed_sheet_fixed: the same on a fixed mesh of light, small faces (48 cells along the strip
-  at scale=small, 96 at scale=paper), where a dense pile once diverged (cloth.membrane);
+  at scale=small, 96 at scale=paper), where a dense pile once diverged (cloth.physics.membrane);
 - thin_triangles: layered sheets made of very thin input triangles (cells 12x longer than wide);
 - thin_garment: the dancer's circle skirt made of very thin input triangles (cells 12x longer
   across than around: one ring of 0.55 m x 5 cm cells at scale=small), adaptive, with self-collision.
@@ -27,7 +28,7 @@ Each case is a scene and mode with a few overrides:
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 
@@ -36,9 +37,10 @@ import pandas as pd
 from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 
+from cloth.collision.untangle import find_intersections
 from cloth.io.manifest import write_text_atomic
-from cloth.untangle import find_intersections
 from experiments.build import build_simulation
+from experiments.compare_modes import markdown
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
 
@@ -161,7 +163,6 @@ def main(argv=None) -> None:
     ap.add_argument("--cases", nargs="+", default=CASE_NAMES, choices=CASE_NAMES)
     ap.add_argument("--out", type=Path, default=Path("results/stability"))
     args = ap.parse_args(argv)
-    from experiments.compare_modes import markdown
     out = args.out / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     out.mkdir(parents=True, exist_ok=True)
     rows = []

@@ -5,9 +5,7 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 import matplotlib
@@ -17,9 +15,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from cloth.io.manifest import write_text_atomic  # noqa: E402
-from experiments.aggregate import (AggregateError, RunSet, check_roots, latest, load_runs,  # noqa: E402
-                                   report_problems)
+from cloth.io.manifest import atomic_write, write_text_atomic  # noqa: E402
+from experiments.aggregate import AggregateError, RunSet, check_roots, latest, load_runs, report_problems  # noqa: E402
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = REPO_ROOT / "results" / "paper_figures"
@@ -55,18 +52,11 @@ def color(mode: str) -> str:
 def save_figure(fig, out_dir, stem: str) -> list[Path]:
     """Save `fig` as <stem>.png and .pdf in out_dir, each atomically (temporary file, then rename)."""
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     files = []
     for ext in FIGURE_FORMATS:
         target = out_dir / f"{stem}.{ext}"
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=f".{ext}", dir=out_dir)
-        os.close(fd)
-        try:
+        with atomic_write(target) as tmp:
             fig.savefig(tmp, format=ext, dpi=DPI, bbox_inches="tight")
-            os.chmod(tmp, 0o644)
-            os.replace(tmp, target)
-        finally:
-            Path(tmp).unlink(missing_ok=True)
         files.append(target)
     plt.close(fig)
     return files

@@ -4,7 +4,7 @@ LaTeX, with the paper's Table 1 beside it.
     python -m paper_figures.table1 ROOT [ROOT ...] [--out DIR]
 
 Runs: the table1 study's when there are any, else every run (never the fine references); see
-experiments.aggregate.table1 for duplicates and the speed-up.
+experiments.aggregate.table1 for duplicates and the speed-up, experiments.tables for the text.
 """
 
 from __future__ import annotations
@@ -12,7 +12,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from experiments.aggregate import table1, table1_runs, write_table1
+from experiments.aggregate import table1, table1_runs
+from experiments.tables import write_table1
 
 from .common import RunSet, Skip, script_main
 

@@ -1,16 +1,15 @@
 """mode=adaptive in the frame loop: initial remesh, rebuilds only after a remesh, refinement where
 the cloth folds, the pop filter, and long runs that stay finite and outside the obstacles."""
 
-from pathlib import Path
+import copy
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
+from helpers import build_sim, count_crossings, material_edge_lengths
 
 from cloth.simulation import Simulation
-from experiments.build import build_simulation
 
-CONF = str(Path(__file__).resolve().parents[1] / "conf")
+ADAPTIVE = "mode=adaptive"
 # Contact leaves nodes at the thickness (5 mm) above a surface, up to the projection's round-off.
 CONTACT_SLACK = 1e-9
 # A draped sheet at rest has kinetic energy ~1e-5 J (contact jitter); a remesh with its pop filter
@@ -19,24 +18,14 @@ CONTACT_SLACK = 1e-9
 POP_KE_BOUND_J = 2e-3
 
 
-def _sim(*overrides):
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        cfg = compose(config_name="config", overrides=["mode=adaptive", *overrides])
-    return build_simulation(cfg)[0]
-
-
-def _edge_lengths(mesh):
-    u = mesh.vert_u[mesh.face_verts]
-    return np.linalg.norm(u - np.roll(u, -1, axis=1), axis=2)
-
-
 def test_initial_remesh_refines_a_coarse_input_to_its_sizing():
-    sim = _sim("scene=hanging_sheet", "scene.scales.small.resolution=2", "scene.scales.small.sizing.size_min=0.05")
-    assert _edge_lengths(sim.mesh).max() > 0.5  # 2 x 2 cells of a 1 m sheet
+    sim = build_sim(ADAPTIVE, "scene=hanging_sheet", "scene.scales.small.resolution=2",
+                    "scene.scales.small.sizing.size_min=0.05")
+    assert material_edge_lengths(sim.mesh).max() > 0.5  # 2 x 2 cells of a 1 m sheet
     sim.advance_frame()
     size_max = sim.remesher.sizing.size_max
     # a resting flat sheet asks for size_max everywhere: every edge at most that long
-    assert _edge_lengths(sim.mesh).max() <= size_max * (1 + 1e-9)
+    assert material_edge_lengths(sim.mesh).max() <= size_max * (1 + 1e-9)
     assert sim.mesh.n_faces > 8
 
 
@@ -49,9 +38,7 @@ def test_nonadaptive_never_remeshes_and_adaptive_rebuilds_only_after_a_remesh(mo
         original(self)
 
     monkeypatch.setattr(Simulation, "rebuild", counting)
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        cfg = compose(config_name="config", overrides=["scene=flag", "mode=nonadaptive"])
-    sim = build_simulation(cfg)[0]
+    sim = build_sim("scene=flag", "mode=nonadaptive")
     assert sim.remesher is None
     calls["n"] = 0
     faces = sim.mesh.n_faces
@@ -59,7 +46,7 @@ def test_nonadaptive_never_remeshes_and_adaptive_rebuilds_only_after_a_remesh(mo
         rec = sim.advance_frame()
         assert rec["remeshed"] == 0 and rec["faces"] == faces
     assert calls["n"] == 0
-    sim = _sim("scene=flag", "mode.every=2")
+    sim = build_sim(ADAPTIVE, "scene=flag", "mode.every=2")
     calls["n"] = 0
     changed = 0
     for _ in range(6):
@@ -71,17 +58,28 @@ def test_nonadaptive_never_remeshes_and_adaptive_rebuilds_only_after_a_remesh(mo
 
 
 SPHERE_RADIUS = 0.25  # m, conf/scene/sheet_on_sphere.yaml
+FOLD_FRAME = 8  # the centre has folded over the sphere; the outer sheet still falls flat
 
 
 @pytest.fixture(scope="module")
-def draped():
-    """sheet_on_sphere in mode=adaptive; the tests below advance it in file order."""
-    return _sim("scene=sheet_on_sphere")
+def draped_at_fold():
+    """sheet_on_sphere in mode=adaptive at FOLD_FRAME, run once; tests get copies (`draped`)."""
+    sim = build_sim(ADAPTIVE, "scene=sheet_on_sphere")
+    while sim.frame < FOLD_FRAME:
+        sim.advance_frame()
+    return sim
+
+
+@pytest.fixture
+def draped(draped_at_fold):
+    """A copy of draped_at_fold for one test to advance and change; it goes on bit-identically
+    to the run it was copied from."""
+    return copy.deepcopy(draped_at_fold)
 
 
 def test_refinement_concentrates_where_the_cloth_folds(draped):
     sim = draped
-    while sim.frame < 8:  # the centre has folded over the sphere; the outer sheet still falls flat
+    while sim.frame < FOLD_FRAME:
         sim.advance_frame()
     mesh = sim.mesh
     c = mesh.node_x[mesh.face_nodes].mean(axis=1)
@@ -118,7 +116,7 @@ def test_remeshing_a_resting_draped_sheet_makes_no_pop(draped):
     ("sheet_on_sphere", []),
 ])
 def test_long_adaptive_runs_stay_finite_and_outside_obstacles(scene, overrides):
-    sim = _sim(f"scene={scene}", *overrides)
+    sim = build_sim(ADAPTIVE, f"scene={scene}", *overrides)
     for _ in range(200):
         rec = sim.advance_frame()
         assert np.isfinite(rec["kinetic_energy_j"])
@@ -135,10 +133,9 @@ def test_crossing_guard_redoes_a_remesh_that_makes_the_cloth_cross_itself():
     one is coarsened. Its collapses cut the troughs' corners, through the upper sheet: the plain
     remesh crosses; the guard redoes it with the crossings' nodes frozen and leaves none, while
     the lower sheet still coarsens where that crosses nothing."""
-    from cloth.adaptive import AdaptiveRemesher
-    from cloth.mesh import grid_mesh, merge_meshes
-    from cloth.remesh import remesh
-    from cloth.untangle import find_intersections
+    from cloth.core.mesh import grid_mesh, merge_meshes
+    from cloth.remeshing.adaptive import AdaptiveRemesher
+    from cloth.remeshing.remesh import remesh
 
     sheets = [grid_mesh(0.4, 0.4, 16, 16) for _ in range(2)]
     for m, dz in zip(sheets, (0.0, 0.001)):
@@ -151,15 +148,12 @@ def test_crossing_guard_redoes_a_remesh_that_makes_the_cloth_cross_itself():
     handle = np.full(mesh.n_nodes, -1)
     handle[n_lower:] = 0
 
-    def crossings(m):
-        return len(find_intersections(m.face_nodes, m.node_x)[0])
-
-    assert crossings(mesh) == 0
+    assert count_crossings(mesh) == 0
     plain = remesh(mesh, vert_M, data, handle)
-    assert crossings(plain.mesh) > 0
+    assert count_crossings(plain.mesh) > 0
     stats = {}
     guarded = AdaptiveRemesher()._avoid_crossings(mesh, vert_M, data, handle, plain, stats)
-    assert crossings(guarded.mesh) == 0
+    assert count_crossings(guarded.mesh) == 0
     assert stats["remesh_guard_rounds"] >= 1 and stats["remesh_frozen_nodes"] > 0
     assert guarded.collapses > 0 and guarded.mesh.n_faces < mesh.n_faces
 
@@ -177,11 +171,11 @@ RESTRICTED_ROUNDS_REL = 0.01
 def _refine_on_sphere(seed, monkeypatch, rounds, rings):
     from dataclasses import replace
 
-    import cloth.adaptive
-    monkeypatch.setattr(cloth.adaptive, "POP_PUSH_ROUNDS", rounds)
-    monkeypatch.setattr(cloth.adaptive, "POP_PUSH_RINGS", rings)
-    sim = _sim("scene=sheet_on_sphere", "scene.scales.small.sizing.size_min=0.4", "mode.sizing.size_max=0.4",
-               f"seed={seed}")
+    import cloth.remeshing.adaptive
+    monkeypatch.setattr(cloth.remeshing.adaptive, "POP_PUSH_ROUNDS", rounds)
+    monkeypatch.setattr(cloth.remeshing.adaptive, "POP_PUSH_RINGS", rings)
+    sim = build_sim(ADAPTIVE, "scene=sheet_on_sphere", "scene.scales.small.sizing.size_min=0.4",
+                    "mode.sizing.size_max=0.4", f"seed={seed}")
     while sim.frame < 25:  # 36 faces, draped
         sim.advance_frame()
     sim.remesher.sizing = replace(sim.remesher.sizing, size_min=0.04, size_max=0.2)
@@ -192,7 +186,7 @@ def _refine_on_sphere(seed, monkeypatch, rounds, rings):
 def test_refining_coarse_cloth_on_the_sphere_alternates_pop_filter_and_push_out(seed, monkeypatch):
     """Refining 0.4 m faces draped on the 0.25 m sphere puts the new midpoints inside it by up to
     the chords' sagitta; pushed out, they stretch their small faces. Alternating the pop filter
-    with the push-out (cloth.adaptive.POP_PUSH_ROUNDS) relaxes more of that than one round of
+    with the push-out (cloth.remeshing.adaptive.POP_PUSH_ROUNDS) relaxes more of that than one round of
     each, and restricting the later rounds to the pushed nodes' surroundings changes nothing."""
     one = _refine_on_sphere(seed, monkeypatch, 1, -1)
     assert one["remesh_nodes_pushed_out"] > 100 and one["remesh_max_depth_m"] > 0.05  # the case is hard

@@ -141,10 +141,9 @@ def test_corrupt_and_half_written_folders_are_reported_by_name_and_skipped(tmp_p
     (corrupt / "frames.parquet").write_bytes(b"PAR1 this is not a parquet file")
     no_summary = write_run(tmp_path / "no_summary", "toy", "viewdep", [1, 2], [1, 2], [9.0, 9.0])
     (no_summary / "summary.json").unlink()
-    interrupted = write_run(tmp_path / "interrupted", "toy", "viewdep", [1, 2], [1, 2], [9.0, 9.0],
-                            status="interrupted")
-    short = write_run(tmp_path / "short", "toy", "viewdep", [1, 2], [1, 2], [9.0, 9.0], frames_requested=5)
-    nan = write_run(tmp_path / "nan", "toy", "viewdep", [1, 2], [1, 2], [9.0, float("nan")])
+    write_run(tmp_path / "interrupted", "toy", "viewdep", [1, 2], [1, 2], [9.0, 9.0], status="interrupted")
+    write_run(tmp_path / "short", "toy", "viewdep", [1, 2], [1, 2], [9.0, 9.0], frames_requested=5)
+    write_run(tmp_path / "nan", "toy", "viewdep", [1, 2], [1, 2], [9.0, float("nan")])
     bad_json = write_run(tmp_path / "bad_json", "toy", "viewdep", [1, 2], [1, 2], [9.0, 9.0])
     (bad_json / "summary.json").write_text('{"status": "compl')
     no_config = write_run(tmp_path / "no_config", "toy", "viewdep", [1, 2], [1, 2], [9.0, 9.0])

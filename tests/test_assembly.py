@@ -2,9 +2,9 @@
 
 import numpy as np
 
-from cloth.assembly import SparsityPattern, apply_dirichlet, bsr_matvec, scatter_blocks, scatter_forces
-from cloth.linsolve import SolverOptions, solve
-from cloth.mesh import grid_mesh
+from cloth.core.mesh import grid_mesh
+from cloth.physics.assembly import SparsityPattern, apply_dirichlet, bsr_matvec, scatter_blocks, scatter_forces
+from cloth.physics.linsolve import SolverOptions, solve
 
 # Dense and sparse sums of the same O(1) products differ by round-off only.
 ROUNDOFF = 1e-12

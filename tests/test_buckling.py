@@ -4,8 +4,8 @@ energy, gradient and Hessian against the public filter and finite differences.""
 import numpy as np
 import pytest
 
-from cloth.buckling import BucklingError, BucklingParams, compression_factor, face_alpha, filter_strain
-from cloth.membrane import deformation_gradient, green_strain, stvk_element
+from cloth.physics.buckling import BucklingError, BucklingParams, compression_factor, face_alpha, filter_strain
+from cloth.physics.membrane import deformation_gradient, green_strain, stvk_element
 
 # Central differences with step 1e-6 on O(1) coordinates: truncation ~1e-12, round-off ~1e-10
 # relative. The filtered energy has a kink where a principal strain crosses 0; the random cases

@@ -4,8 +4,7 @@ collision detection by dense sampling of the motion, edge-triangle crossings by 
 import numpy as np
 import pytest
 
-from cloth.ccd import (edge_triangle_crossing, ee_ccd, point_triangle_closest, segment_segment_closest,
-                       vf_ccd)
+from cloth.collision.ccd import edge_triangle_crossing, ee_ccd, point_triangle_closest, segment_segment_closest, vf_ccd
 
 # dense sampling of a unit-size triangle with 300 x 300 barycentric steps finds the distance to
 # within the sampling step (~1/300 of the size)

@@ -5,8 +5,18 @@ phase that delays the motion (the body at rest until then)."""
 import numpy as np
 import pytest
 
-from cloth.character import (CAPSULE_NAMES, CAPSULE_RADII, HEIGHT, JOINTS, Dance, Karate, Mannequin, Pose,
-                             capsule_endpoints, make_motion)
+from cloth.scenes.character import (
+    CAPSULE_NAMES,
+    CAPSULE_RADII,
+    HEIGHT,
+    JOINTS,
+    Dance,
+    Karate,
+    Mannequin,
+    Pose,
+    capsule_endpoints,
+    make_motion,
+)
 
 ROUNDOFF = 1e-9
 # The capsule velocities are central differences over 1e-4 s; over a 1e-3 s window the mean

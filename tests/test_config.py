@@ -1,35 +1,24 @@
 """Hydra configs: every config composes and builds; every bad value gives its one message."""
 
 import json
-import os
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
-from hydra import compose, initialize_config_dir
+from helpers import compose_config, config_choices, run_module
 from hydra.errors import MissingConfigException
 
 from experiments.build import ConfigError, build_simulation
 
-ROOT = Path(__file__).resolve().parents[1]
-CONF = str(ROOT / "conf")
-SCENES = sorted(p.stem for p in (ROOT / "conf" / "scene").glob("*.yaml"))
-MATERIALS = sorted(p.stem for p in (ROOT / "conf" / "material").glob("*.yaml"))
-SOLVERS = sorted(p.stem for p in (ROOT / "conf" / "solver").glob("*.yaml"))
-
-
-def _cfg(*overrides):
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides))
+SCENES = config_choices("scene")
+MATERIALS = config_choices("material")
+SOLVERS = config_choices("solver")
 
 
 @pytest.mark.parametrize("scene", SCENES)
 @pytest.mark.parametrize("scale", ["small", "paper"])
 def test_every_scene_and_scale_builds(scene, scale):
-    sim, frames = build_simulation(_cfg(f"scene={scene}", f"scale={scale}"))
+    sim, frames = build_simulation(compose_config(f"scene={scene}", f"scale={scale}"))
     assert frames >= 1 and sim.mesh.n_faces > 0
     assert sim.scene.name.split("/")[0] == scene  # a crowd names its character: scene/dancer_00
 
@@ -37,7 +26,7 @@ def test_every_scene_and_scale_builds(scene, scale):
 @pytest.mark.parametrize("material", MATERIALS)
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_every_material_and_solver_builds(material, solver):
-    sim, _ = build_simulation(_cfg(f"material={material}", f"solver={solver}"))
+    sim, _ = build_simulation(compose_config(f"material={material}", f"solver={solver}"))
     assert sim.scene.material.name == material and sim.solver.method == solver
 
 
@@ -55,20 +44,19 @@ def test_every_material_and_solver_builds(material, solver):
 ])
 def test_config_errors_name_the_key(override, key):
     with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
-        build_simulation(_cfg(override))
+        build_simulation(compose_config(override))
 
 
 @pytest.mark.parametrize("override, group", [("scene=nope", "scene"), ("material=silk", "material"),
                                              ("mode=warp", "mode")])
 def test_unknown_config_choice_names_the_group(override, group):
     with pytest.raises(MissingConfigException, match=f"'{group}/"):
-        _cfg(override)
+        compose_config(override)
 
 
-def _cli(tmp_path, *args):
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run([sys.executable, "-m", "experiments.run", f"hydra.run.dir={tmp_path}", *args],
-                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+def _cli(run_dir, *args):
+    """`python -m experiments.run` with `args`, its run folder `run_dir`."""
+    return run_module("experiments.run", f"hydra.run.dir={run_dir}", *args, timeout=600)
 
 
 def test_cli_config_error_is_one_clear_message(tmp_path):
@@ -118,7 +106,7 @@ def test_non_finite_state_stops_the_run_at_its_frame_and_keeps_earlier_frames(tm
     from cloth.runner import run
     from cloth.simulation import SimulationDiverged
 
-    sim, _ = build_simulation(_cfg("scene=hanging_sheet", "output.rerun=false"))
+    sim, _ = build_simulation(compose_config("scene=hanging_sheet", "output.rerun=false"))
     step = sim.step
 
     def poisoned_step(timings, stats):  # a NaN appears in the third frame
@@ -138,7 +126,7 @@ def test_diverging_run_names_the_frame_and_keeps_earlier_frames(tmp_path):
     from cloth.runner import run
     from cloth.simulation import SimulationDiverged
 
-    sim, _ = build_simulation(_cfg("scene=hanging_sheet", "max_speed=1.0", "output.rerun=false"))
+    sim, _ = build_simulation(compose_config("scene=hanging_sheet", "max_speed=1.0", "output.rerun=false"))
     with pytest.raises(SimulationDiverged, match=r"frame (\d+): node speed") as info:
         run(sim, 60, tmp_path)
     frame = int(info.value.args[0].split()[1].rstrip(":"))
@@ -151,16 +139,16 @@ def test_diverging_run_names_the_frame_and_keeps_earlier_frames(tmp_path):
 
 def test_mode_defaults_are_arcsims_and_the_papers():
     """conf/mode: ARCSim's remeshing defaults (issue 3) and the paper's view-dependent constants."""
-    ad = _cfg("mode=adaptive").mode
+    ad = compose_config("mode=adaptive").mode
     assert (ad.sizing.refine_angle, ad.sizing.refine_compression, ad.sizing.refine_velocity) == (0.3, 0.005, 0.5)
     assert (ad.sizing.size_min, ad.sizing.size_max, ad.sizing.aspect_min, ad.sizing.combine) == (0.01, 0.2, 0.2, "max")
     assert ad.buckling is None
-    vd = _cfg("mode=viewdep", "camera=sheet_half").mode
+    vd = compose_config("mode=viewdep", "camera=sheet_half").mode
     assert (vd.view.nu_front, vd.view.nu_back, vd.view.nu_out) == (1.0, 0.2, 0.01)
     assert (vd.view.margin, vd.view.anticipation_frames, vd.view.anticipation) == (0.4, 5, True)
     assert vd.sizing == ad.sizing and vd.remesh == ad.remesh  # viewdep is adaptive plus the view
-    sim, _ = build_simulation(_cfg("mode=viewdep", "camera=sheet_half"))
+    sim, _ = build_simulation(compose_config("mode=viewdep", "camera=sheet_half"))
     assert sim.buckling is not None and sim.buckling.k == 10 and sim.buckling.mode == "adaptive"
     for scene in ("sheet_on_sphere", "flag"):  # the ARCSim-like scenes: frames of 0.04 s, 8 steps
-        s = build_simulation(_cfg(f"scene={scene}"))[0].scene
+        s = build_simulation(compose_config(f"scene={scene}"))[0].scene
         assert (s.frame_time, s.steps_per_frame) == (0.04, 8)

@@ -1,4 +1,4 @@
-"""Contact constraints inside the implicit solve (cloth.integrator.ContactConstraints).
+"""Contact constraints inside the implicit solve (cloth.physics.integrator.ContactConstraints).
 
 A node resting on an obstacle is held by the linear solve itself, so a large internal force on
 a light node cannot carry it through the obstacle and sideways within one step (what broke
@@ -8,12 +8,12 @@ comes from the constraint's normal impulse; a node whose forces pull it away lif
 
 import numpy as np
 
-from cloth.integrator import ContactConstraints, implicit_euler_step
-from cloth.linsolve import SolverOptions
-from cloth.material import Material
-from cloth.mesh import grid_mesh
-from cloth.obstacles import Plane
-from cloth.scene import Scene
+from cloth.collision.obstacles import Plane
+from cloth.core.material import Material
+from cloth.core.mesh import grid_mesh
+from cloth.core.scene import Scene
+from cloth.physics.integrator import ContactConstraints, implicit_euler_step
+from cloth.physics.linsolve import SolverOptions
 from cloth.simulation import Simulation
 
 COTTON = Material("cotton", density=0.12, youngs_modulus=2.0e3, poisson_ratio=0.3,

@@ -11,20 +11,24 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
-from hydra import compose, initialize_config_dir
+from helpers import after_every_step, build_sim, compose_config, material_edge_lengths, read_frames, run_config
 from omegaconf import OmegaConf
-
 from scipy.spatial import cKDTree
 
-from cloth.character import Dance, Karate, Mannequin, forward_kinematics
-from cloth.garments import (annulus_mesh, boundary_loops, circle_skirt, merge_garments, obj_garment, tube_mesh,
-                            tube_skirt)
+from cloth.core.mesh import MeshError
 from cloth.io.obj import save_obj
-from cloth.mesh import MeshError
-from cloth.scenes import crowd_placement
+from cloth.scenes.character import Dance, Karate, Mannequin, forward_kinematics
+from cloth.scenes.garments import (
+    annulus_mesh,
+    boundary_loops,
+    circle_skirt,
+    merge_garments,
+    obj_garment,
+    tube_mesh,
+    tube_skirt,
+)
+from cloth.scenes.registry import crowd_placement
 from experiments.build import ConfigError, build_simulation
-from experiments.run import run_from_config
-from tests.test_config import CONF
 
 ROUNDOFF = 1e-9
 # Pinned waistband nodes follow the waist joint exactly; a free node may sit anywhere outside the
@@ -39,17 +43,6 @@ OBJ_ROUNDTRIP = 1e-12
 MAX_DV_PER_MS = 0.2
 
 
-def _cfg(*overrides):
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides))
-
-
-def _material_edge_lengths(mesh):
-    fv = mesh.face_verts
-    u = mesh.vert_u
-    return np.concatenate([np.linalg.norm(u[fv[:, (k + 1) % 3]] - u[fv[:, k]], axis=1) for k in range(3)])
-
-
 def _world_face_edge_lengths(mesh):
     x = mesh.node_x[mesh.vert_node[mesh.face_verts]]
     return np.concatenate([np.linalg.norm(x[:, (k + 1) % 3] - x[:, k], axis=1) for k in range(3)])
@@ -59,7 +52,7 @@ def _world_face_edge_lengths(mesh):
                                   lambda: tube_mesh(0.25, 0.6, 20, 7, (0, 0, 1.2))])
 def test_patterns_start_isometric_to_their_material(make):
     mesh = make()
-    mat, world = _material_edge_lengths(mesh), _world_face_edge_lengths(mesh)
+    mat, world = material_edge_lengths(mesh), _world_face_edge_lengths(mesh)
     if mesh.n_verts == mesh.n_nodes:  # the annulus lies flat: exact
         assert np.allclose(mat, world, atol=ROUNDOFF)
     else:  # rolled: an edge of material length L across an arc of radius r has chord 2 r sin(L / 2r)
@@ -108,13 +101,14 @@ def test_garments_start_clear_of_the_body_and_pinned_to_it(body, garments):
 
 
 def test_scene_configs_bring_their_camera_and_length():
-    cfg = _cfg("scene=solo_dancer")
+    cfg = compose_config("scene=solo_dancer")
     assert cfg.frames == 150 and cfg.camera.type == "cuts"
-    assert _cfg("scene=solo_dancer", "camera=none").camera.type == "none"
-    assert _cfg("scene=solo_dancer", "frames=7").frames == 7
-    assert _cfg("scene=sheet_on_sphere").camera.type == "none" and _cfg("scene=sheet_on_sphere").frames == 60
+    assert compose_config("scene=solo_dancer", "camera=none").camera.type == "none"
+    assert compose_config("scene=solo_dancer", "frames=7").frames == 7
+    assert (compose_config("scene=sheet_on_sphere").camera.type == "none"
+            and compose_config("scene=sheet_on_sphere").frames == 60)
     for scene in ("karate", "multiple_dancers"):
-        path = build_simulation(_cfg(f"scene={scene}"))[0].scene.camera
+        path = build_simulation(compose_config(f"scene={scene}"))[0].scene.camera
         assert len(path.cuts) >= 1  # at least one jump cut
 
 
@@ -125,27 +119,25 @@ def test_scene_configs_bring_their_camera_and_length():
 ])
 def test_crowd_config_errors_name_the_key(override, key):
     with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
-        build_simulation(_cfg("scene=multiple_dancers", override))
+        build_simulation(compose_config("scene=multiple_dancers", override))
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("scene", ["solo_dancer", "karate"])
 def test_60_frames_stay_finite_and_out_of_the_body(scene):
-    sim, _ = build_simulation(_cfg(f"scene={scene}", "camera=none"))
+    sim, _ = build_simulation(compose_config(f"scene={scene}", "camera=none"))
     body = sim.scene.obstacles[0]
     free = ~sim.mesh.node_pinned
     closest = np.inf
-    step = sim.step
 
-    def checked_step(timings, stats):
+    def check(sim):
         nonlocal closest
-        step(timings, stats)
         body.set_time(sim.time)
         phi, _, _ = body.query(sim.mesh.node_x)
         assert phi.min() >= INSIDE_BODY, f"node inside the body at t = {sim.time:.3f} s: phi = {phi.min():.4f} m"
         closest = min(closest, phi[free].min())
 
-    sim.step = checked_step
+    after_every_step(sim, check)
     fastest = 0.0
     for _ in range(60):
         fastest = max(fastest, sim.advance_frame()["max_speed_m_s"])
@@ -158,7 +150,7 @@ def test_60_frames_stay_finite_and_out_of_the_body(scene):
 
 @pytest.mark.slow
 def test_karate_keeps_its_seams_through_adaptive_remeshing():
-    sim, _ = build_simulation(_cfg("scene=karate", "mode=adaptive", "camera=none"))
+    sim, _ = build_simulation(compose_config("scene=karate", "mode=adaptive", "camera=none"))
     seam_nodes = np.count_nonzero(np.bincount(sim.mesh.vert_node) == 2)
     for _ in range(5):
         rec = sim.advance_frame()
@@ -173,15 +165,11 @@ def test_karate_keeps_its_seams_through_adaptive_remeshing():
 
 
 def test_karate_without_self_collision_says_so():
-    from cloth.scenes import CHARACTER_EFFECTS, NO_SELF_COLLISION_NOTE, karate
+    from cloth.scenes.registry import CHARACTER_EFFECTS, NO_SELF_COLLISION_NOTE, karate
     from experiments.build import build_material
-    material = build_material(_cfg("scene=karate"))
+    material = build_material(compose_config("scene=karate"))
     assert NO_SELF_COLLISION_NOTE in karate(material, resolution=8, effects=CHARACTER_EFFECTS).notes
     assert not karate(material, resolution=8).notes
-
-
-def _records(path):
-    return pd.read_parquet(path / "frames.parquet")
 
 
 @pytest.mark.slow
@@ -190,11 +178,10 @@ def test_crowd_records_are_sums_and_characters_match_running_alone(tmp_path):
     common = [f"frames={frames}", "output.rerun=false", f"output.obj_every={frames}", "mode=viewdep",
               "scale=small"]
     crowd_dir = tmp_path / "crowd"
-    summary = run_from_config(_cfg("scene=multiple_dancers", f"scene.params.count={count}", "crowd_jobs=2",
-                                   *common), crowd_dir)
+    summary = run_config(crowd_dir, "scene=multiple_dancers", f"scene.params.count={count}", "crowd_jobs=2", *common)
     assert summary["status"] == "completed" and summary["characters"] == count
-    total = _records(crowd_dir)
-    parts = [_records(crowd_dir / f"dancer_{i:02d}") for i in range(count)]
+    total = read_frames(crowd_dir)
+    parts = [read_frames(crowd_dir / f"dancer_{i:02d}") for i in range(count)]
     for col in ("faces", "verts", "nodes", "wall_s", "faces_in_view", "time_remesh_s"):
         assert np.allclose(total[col], sum(p[col] for p in parts), rtol=ROUNDOFF), col
     assert summary["faces_mean"] == pytest.approx(total["faces"].mean())
@@ -206,10 +193,10 @@ def test_crowd_records_are_sums_and_characters_match_running_alone(tmp_path):
                                             cfg.scene.params.phase_step, cfg.scene.params.heading_step,
                                             cfg.scene.params.phase_wrap)
     alone = tmp_path / "alone"
-    run_from_config(_cfg("scene=solo_dancer", "camera=crowd_shots", *common,
-                         f"+scene.params.position=[{pos[1][0]},{pos[1][1]},{pos[1][2]}]",
-                         f"+scene.params.phase={phases[1]}", f"+scene.params.heading={headings[1]}"), alone)
-    a, b = _records(alone), parts[1]
+    run_config(alone, "scene=solo_dancer", "camera=crowd_shots", *common,
+               f"+scene.params.position=[{pos[1][0]},{pos[1][1]},{pos[1][2]}]",
+               f"+scene.params.phase={phases[1]}", f"+scene.params.heading={headings[1]}")
+    a, b = read_frames(alone), parts[1]
     same = [c for c in a.columns if not c.startswith("time_") and c != "wall_s"]
     pd.testing.assert_frame_equal(a[same], b[same])
     obj = f"obj/frame_{frames:05d}.obj"
@@ -218,8 +205,8 @@ def test_crowd_records_are_sums_and_characters_match_running_alone(tmp_path):
 
 def test_stills_need_a_camera_and_are_written(tmp_path):
     with pytest.raises(ConfigError, match=r"output\.stills_every"):
-        build_simulation(_cfg("scene=solo_dancer", "camera=none", "output.stills_every=1"))
-    run_from_config(_cfg("scene=solo_dancer", "frames=2", "output.stills_every=2", "output.rerun=false"), tmp_path)
+        build_simulation(compose_config("scene=solo_dancer", "camera=none", "output.stills_every=1"))
+    run_config(tmp_path, "scene=solo_dancer", "frames=2", "output.stills_every=2", "output.rerun=false")
     assert (tmp_path / "stills" / "frame_00002.png").stat().st_size > 1000
     assert not (tmp_path / "stills" / "frame_00001.png").exists()
 
@@ -227,7 +214,7 @@ def test_stills_need_a_camera_and_are_written(tmp_path):
 # ---- crowd delays ------------------------------------------------------------------------------
 
 def test_every_crowd_dancer_starts_at_rest_and_its_delayed_start_is_smooth():
-    cfg = _cfg("scene=multiple_dancers", "scale=small", "camera=none")
+    cfg = compose_config("scene=multiple_dancers", "scale=small", "camera=none")
     count = cfg.scene.params.count
     bodies = [build_simulation(cfg, character=k)[0].scene.obstacles[0] for k in range(count)]
     phases = np.array([b.phase for b in bodies])
@@ -319,9 +306,8 @@ def test_solo_dancer_runs_with_an_obj_garment_pinned_to_the_body(tmp_path):
     path = tmp_path / "skirt.obj"
     save_obj(path, skirt.mesh)
     # no rest before the dance, a short blend-in: the waist turns ~0.1 rad in the 5 frames
-    sim, _ = build_simulation(_cfg("scene=solo_dancer", "mode=nonadaptive", "camera=none", "scene.params.garment=obj",
-                                   f"scene.params.garment_obj={path}", "scene.params.settle=0",
-                                   "scene.params.blend_in=0.5"))
+    sim = build_sim("scene=solo_dancer", "mode=nonadaptive", "camera=none", "scene.params.garment=obj",
+                    f"scene.params.garment_obj={path}", "scene.params.settle=0", "scene.params.blend_in=0.5")
     assert sim.mesh.n_nodes == skirt.mesh.n_nodes and sim.mesh.n_faces == skirt.mesh.n_faces
     pinned = np.flatnonzero(sim.mesh.node_pinned)
     assert np.array_equal(pinned, np.sort(skirt.pinned))
@@ -341,19 +327,19 @@ def test_solo_dancer_runs_with_an_obj_garment_pinned_to_the_body(tmp_path):
 def test_obj_garment_config_errors_name_the_file_and_the_key(tmp_path):
     missing = tmp_path / "no_skirt.obj"
     with pytest.raises(ConfigError, match=rf"garment_obj: {missing}: no such file"):
-        build_simulation(_cfg("scene=solo_dancer", "scene.params.garment=obj", f"scene.params.garment_obj={missing}"))
+        build_sim("scene=solo_dancer", "scene.params.garment=obj", f"scene.params.garment_obj={missing}")
     flat = tmp_path / "no_uv.obj"
     flat.write_text("v 0 0 1\nv 1 0 1\nv 0 1 1\nf 1 2 3\n")
     with pytest.raises(ConfigError, match=rf"garment_obj: {flat}: has no texture coordinates"):
-        build_simulation(_cfg("scene=solo_dancer", "scene.params.garment=obj", f"scene.params.garment_obj={flat}"))
+        build_sim("scene=solo_dancer", "scene.params.garment=obj", f"scene.params.garment_obj={flat}")
     skirt = tmp_path / "skirt.obj"
     save_obj(skirt, circle_skirt(Mannequin(Dance()), resolution=8).mesh)
     with pytest.raises(ConfigError, match=rf"garment_obj: {skirt}: .* nodes start inside the body"):
-        build_simulation(_cfg("scene=solo_dancer", "scene.params.garment=obj", f"scene.params.garment_obj={skirt}",
-                              "scene.params.garment_offset=[0.2,0,0]"))  # the waistband through the waist
+        build_sim("scene=solo_dancer", "scene.params.garment=obj", f"scene.params.garment_obj={skirt}",
+                  "scene.params.garment_offset=[0.2,0,0]")  # the waistband through the waist
     with pytest.raises(ConfigError, match="garment_obj: garment=obj needs"):
-        build_simulation(_cfg("scene=solo_dancer", "scene.params.garment=obj"))
+        build_simulation(compose_config("scene=solo_dancer", "scene.params.garment=obj"))
     with pytest.raises(ConfigError, match="garment must be one of"):
-        build_simulation(_cfg("scene=solo_dancer", "scene.params.garment=cape"))
+        build_simulation(compose_config("scene=solo_dancer", "scene.params.garment=cape"))
     with pytest.raises(ConfigError, match="garment_obj .* only read with garment=obj"):
-        build_simulation(_cfg("scene=solo_dancer", f"scene.params.garment_obj={skirt}"))
+        build_simulation(compose_config("scene=solo_dancer", f"scene.params.garment_obj={skirt}"))

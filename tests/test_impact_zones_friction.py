@@ -2,27 +2,17 @@
 the Gauss-Seidel CCD passes are not enough) and Coulomb friction between layers in contact."""
 
 import numpy as np
+from helpers import two_sheets
 
-from cloth.material import Material
-from cloth.mesh import grid_mesh, merge_meshes
-from cloth.selfcollision import SelfCollisionParams, resolve_self_collisions
-from cloth.untangle import find_intersections
+from cloth.collision.selfcollision import SelfCollisionParams, resolve_self_collisions
+from cloth.collision.untangle import find_intersections
 
-COTTON = Material("cotton", density=0.12, youngs_modulus=2.0e3, poisson_ratio=0.3, bending_stiffness=2e-6)
 THICKNESS = 0.005
 # Rigid impact zones move each zone by its mean displacement: momentum is kept to round-off.
 MOMENTUM_TOL = 1e-12
 # Without friction the repulsion is along the contact normal (z here): the sideways slide of the
 # upper sheet is kept up to the tilt of the few normals near its edges (measured: 96 %).
 SLIDE_KEPT = 0.9
-
-
-def two_sheets(n=6, gap=0.02, size=0.3):
-    lower = grid_mesh(size, size, n, n, origin=(0.0, 0.0, 0.0))
-    upper = grid_mesh(size * 0.8, size * 0.8, n, n, origin=(0.043, 0.037, gap))
-    mesh = merge_meshes([lower, upper])
-    mesh.update_rest_data(COTTON.density)
-    return mesh, lower.n_nodes
 
 
 def test_impact_zones_alone_stop_a_sheet_driven_through_another():

@@ -6,11 +6,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from cloth.collision.obstacles import Sphere
+from cloth.core.mesh import Mesh, grid_mesh
 from cloth.io.manifest import environment_manifest, write_json_atomic, write_parquet_atomic
 from cloth.io.obj import ObjError, load_obj, save_obj
 from cloth.io.recorder import NullRecorder, RerunRecorder
-from cloth.mesh import Mesh, grid_mesh
-from cloth.obstacles import Sphere
 
 # trimesh writes 17 decimal places (fixed point): values read back to within 1e-17 absolute.
 ROUNDTRIP = 1e-16

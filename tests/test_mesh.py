@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from cloth.mesh import Mesh, MeshError, grid_mesh
+from cloth.core.mesh import Mesh, MeshError, grid_mesh
 
 # Areas and masses are sums of a few hundred products of O(1) numbers.
 ROUNDOFF = 1e-12
@@ -101,7 +101,8 @@ def test_inconsistent_orientation_across_a_seam_is_rejected():
     # two panels, each counter-clockwise in material space, sewn so that both traverse the
     # node edge 0 -> 1 in the same direction: one of them is flipped in the world
     u = [[0, 0], [1, 0], [0, 1], [3, 0], [4, 0], [3, 1]]
-    with pytest.raises(MeshError, match=r"faces 0 and 1 have inconsistent orientation across the edge between nodes \[0, 1\]"):
+    match = r"faces 0 and 1 have inconsistent orientation across the edge between nodes \[0, 1\]"
+    with pytest.raises(MeshError, match=match):
         Mesh(node_x=np.zeros((4, 3)), node_v=np.zeros((4, 3)), node_pinned=np.zeros(4, bool),
              vert_u=u, vert_node=[0, 1, 2, 0, 1, 3], face_verts=[[0, 1, 2], [3, 4, 5]])
 

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from cloth.contact import resolve_obstacle_contacts
-from cloth.obstacles import Capsule, CapsuleUnion, Linear, ObstacleSet, Oscillate, Plane, Sphere, Spin, Static
+from cloth.collision.contact import resolve_obstacle_contacts
+from cloth.collision.obstacles import Capsule, CapsuleUnion, Linear, ObstacleSet, Oscillate, Plane, Sphere, Spin, Static
 
 # Distances are sums and square roots of O(1) numbers.
 ROUNDOFF = 1e-12

@@ -6,11 +6,21 @@ import math
 import numpy as np
 import pytest
 
-from cloth import remesh as rm
-from cloth.mesh import Mesh, grid_mesh
-from cloth.remesh import RemeshParams, remesh
-from cloth.sizing import (clamp_sizing, compression_sizing, curvature_sizing, face_to_vert_sizing,
-                          obstacle_sizing, tensor_max, velocity_sizing)
+from cloth.core.mesh import Mesh, grid_mesh
+from cloth.remeshing.kernels.collapses import try_collapse
+from cloth.remeshing.kernels.flips import flip
+from cloth.remeshing.kernels.halfedge import RING_MAX, retwin
+from cloth.remeshing.kernels.splits import split
+from cloth.remeshing.remesh import RemeshParams, RemeshWork, remesh
+from cloth.remeshing.sizing import (
+    clamp_sizing,
+    compression_sizing,
+    curvature_sizing,
+    face_to_vert_sizing,
+    obstacle_sizing,
+    tensor_max,
+    velocity_sizing,
+)
 
 # Edge sizes are compared with 1 after a remesh; a split at the midpoint of an edge with s = 1 + eps
 # leaves halves of s ~ 0.5, so only round-off can leave an edge above 1.
@@ -111,10 +121,10 @@ def test_random_operation_sequences_keep_every_invariant(seed, make):
     mesh = grid_mesh(1.0, 0.7, 6, 4) if make == "grid" else tube()
     M = iso(mesh, 0.1)
     M[:, 0, 0] *= rng.uniform(0.5, 2.0, mesh.n_verts)  # anisotropic, varying
-    w = rm._Work(mesh, M, node_data(mesh), free(mesh))
+    w = RemeshWork(mesh, M, node_data(mesh), free(mesh))
     area0 = mesh.face_area.sum()
     check_work(w)
-    buf, buf2 = np.empty(rm.RING_MAX, np.int64), np.empty(rm.RING_MAX, np.int64)
+    buf, buf2 = np.empty(RING_MAX, np.int64), np.empty(RING_MAX, np.int64)
     stack = np.empty(4096, np.int64)
     done = {"split": 0, "flip": 0, "collapse": 0}
     for _ in range(150):
@@ -125,8 +135,8 @@ def test_random_operation_sequences_keep_every_invariant(seed, make):
         h = 3 * f + int(rng.integers(3))
         op = rng.choice(["split", "flip", "collapse"], p=[0.4, 0.3, 0.3])
         if op == "split":
-            rm._split(w.fv, w.fadj, w.ftw, w.falive, w.vu, w.vM, w.vnode, w.vface, w.valive, w.nd, w.npin,
-                      w.nnv, w.nalive, h, w.cnt, w.fdirty, stack)
+            split(w.fv, w.fadj, w.ftw, w.falive, w.vu, w.vM, w.vnode, w.vface, w.valive, w.nd, w.npin,
+                  w.nnv, w.nalive, h, w.cnt, w.fdirty, stack)
             ok = True
         elif op == "flip":
             ok = w.fadj[f, h % 3] >= 0
@@ -135,13 +145,13 @@ def test_random_operation_sequences_keep_every_invariant(seed, make):
                 g = w.fadj[f, h % 3] // 3
                 tw_g = tuple(int(t) for t in w.ftw[g])
                 old = tuple(int(v) for v in np.concatenate([w.fv[f], w.fv[g]]))
-                ok = rm._flip(w.fv, w.fadj, w.vu, w.vface, h)
+                ok = flip(w.fv, w.fadj, w.vu, w.vface, h)
                 if ok:
-                    rm._retwin(w.fv, w.ftw, f, g, old, tw_f, tw_g)
+                    retwin(w.fv, w.ftw, f, g, old, tw_f, tw_g)
         else:
-            ok = rm._try_collapse(w.fv, w.fadj, w.ftw, w.falive, w.vu, w.vM, w.vnode, w.vface, w.valive,
-                                  w.npin, w.nnv, w.nalive, h, bool(rng.integers(2)), 0.05, 4.0,
-                                  math.cos(0.5), buf, buf2, w.fdirty, w.nd, np.inf, -1)
+            ok = try_collapse(w.fv, w.fadj, w.ftw, w.falive, w.vu, w.vM, w.vnode, w.vface, w.valive,
+                              w.npin, w.nnv, w.nalive, h, bool(rng.integers(2)), 0.05, 4.0,
+                              math.cos(0.5), buf, buf2, w.fdirty, w.nd, np.inf, -1)
         done[op] += bool(ok)
         out = check_work(w)
         assert out.face_area.sum() == pytest.approx(area0, rel=1e-12), f"material area changed by a {op}"
@@ -248,7 +258,7 @@ def test_pinned_nodes_stay_and_new_nodes_between_a_handle_join_it():
 
 def test_remeshing_conserves_mass_and_momentum():
     rng = np.random.default_rng(3)
-    from cloth.adaptive import restore_momentum
+    from cloth.remeshing.adaptive import restore_momentum
     mesh = grid_mesh(1.0, 1.0, 16, 16)
     mesh.node_x[:, 2] = 0.1 * np.sin(3 * mesh.node_x[:, 0])
     mesh.node_v[:] = rng.normal(size=mesh.node_v.shape)

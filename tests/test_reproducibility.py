@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from hydra import compose, initialize_config_dir
+from helpers import QUIET, ROOT, compose_config, module_env, run_config, run_module
 from omegaconf import OmegaConf
 
 from experiments import replay as replay_mod
@@ -24,25 +24,10 @@ from experiments import resume as resume_mod
 from experiments.build import ConfigError
 from experiments.run import run_from_config
 
-ROOT = Path(__file__).resolve().parents[1]
-CONF = str(ROOT / "conf")
-QUIET = ("output.rerun=false", "output.progress=false", "output.states_every=0")
+NO_OUTPUT = (*QUIET, "output.states_every=0")  # no recording, progress bar or per-frame states
 KILL_TIMEOUT_S = 120.0  # generous bound for the killed run to reach its checkpoint on a loaded machine
 POLL_S = 0.02  # polling interval while waiting for the checkpoint
-
-
-def _cfg(*overrides):
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides))
-
-
-def _env(**extra):
-    return dict(os.environ, PYTHONPATH=str(ROOT), **extra)
-
-
-def _module(*args, **env):
-    return subprocess.run([sys.executable, "-m", *args], cwd=ROOT, env=_env(**env), capture_output=True,
-                          text=True, timeout=300)
+MODULE_TIMEOUT_S = 300  # a replay or resume of a few frames in a new process
 
 
 def _deterministic(frames: pd.DataFrame) -> pd.DataFrame:
@@ -69,10 +54,18 @@ def _reference(run_dir: Path, out: Path) -> Path:
 
 
 @pytest.fixture(scope="module")
-def finished_run(tmp_path_factory):
+def finished_run_once(tmp_path_factory):
+    """A completed 3-frame run, made once; tests get copies (`finished_run`)."""
     out = tmp_path_factory.mktemp("finished") / "run"
-    run_from_config(_cfg("scene=hanging_sheet", "frames=3", "output.checkpoint_every=2", *QUIET), out)
+    run_config(out, "scene=hanging_sheet", "frames=3", "output.checkpoint_every=2", *NO_OUTPUT)
     return out
+
+
+@pytest.fixture
+def finished_run(finished_run_once, tmp_path):
+    """A copy of the completed run for one test (file modes kept): what a test or the code under
+    test writes into it no other test sees."""
+    return Path(shutil.copytree(finished_run_once, tmp_path / "finished_run"))
 
 
 def test_run_folder_is_self_contained(finished_run):
@@ -94,7 +87,8 @@ def test_run_folder_is_self_contained(finished_run):
 
 def test_replay_of_a_short_run_matches_with_one_thread(finished_run, tmp_path):
     """A new process with one numba thread reproduces a run made with the default thread count."""
-    out = _module("experiments.replay", str(finished_run), "--out", str(tmp_path / "replay"), NUMBA_NUM_THREADS="1")
+    out = run_module("experiments.replay", str(finished_run), "--out", str(tmp_path / "replay"),
+                     env={"NUMBA_NUM_THREADS": "1"}, timeout=MODULE_TIMEOUT_S)
     assert out.returncode == 0, out.stdout + out.stderr
     assert "verdict: MATCH" in out.stdout and "final positions (frame 3, " in out.stdout
     report = json.loads((tmp_path / "replay" / "replay_report.json").read_text())
@@ -104,13 +98,12 @@ def test_replay_of_a_short_run_matches_with_one_thread(finished_run, tmp_path):
     assert "kinetic_energy_j" in report["checks"][0]["frames"]["columns_compared"]
 
 
-def test_replay_of_an_adaptive_run_matches(tmp_path):
+def test_replay_of_an_adaptive_run_matches(quiet_run):
     """The remesher carries state from frame to frame; a replay in a new process reproduces it."""
-    run = tmp_path / "run"
-    run_from_config(_cfg("scene=sheet_on_sphere", "mode=adaptive", "frames=3", *QUIET), run)
+    run = quiet_run("scene=sheet_on_sphere", "mode=adaptive", "frames=3", "output.states_every=0")
     frames = pd.read_parquet(run / "frames.parquet")
     assert (frames["remesh_splits"] + frames["remesh_collapses"]).sum() > 0  # it did change the mesh
-    out = _module("experiments.replay", str(run))
+    out = run_module("experiments.replay", str(run), timeout=MODULE_TIMEOUT_S)
     assert out.returncode == 0, out.stdout + out.stderr
     replays = list(run.glob("replay_*"))  # default: inside the run folder
     assert len(replays) == 1 and (replays[0] / "replay_report.json").exists()
@@ -155,8 +148,8 @@ def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
     run, n = tmp_path / "killed", 16
     proc = subprocess.Popen(
         [sys.executable, "-m", "experiments.run", "scene=sheet_on_sphere", "mode=viewdep", "camera=sheet_half",
-         f"frames={n}", "output.checkpoint_every=2", *QUIET, f"hydra.run.dir={run}"],
-        cwd=ROOT, env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+         f"frames={n}", "output.checkpoint_every=2", *NO_OUTPUT, f"hydra.run.dir={run}"],
+        cwd=ROOT, env=module_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     info = run / "checkpoint" / "state.json"
     deadline = time.monotonic() + KILL_TIMEOUT_S
     try:
@@ -176,7 +169,7 @@ def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
     assert frame > 2 and not (run / "summary.json").exists()
     assert len(pd.read_parquet(run / "frames.parquet")) < n
 
-    out = _module("experiments.resume", str(run), "--no-progress")
+    out = run_module("experiments.resume", str(run), "--no-progress", timeout=MODULE_TIMEOUT_S)
     assert out.returncode == 0, out.stdout + out.stderr
     assert f"from frame {frame}" in out.stdout
     assert json.loads((run / "summary.json").read_text())["status"] == "completed"
@@ -202,8 +195,8 @@ def _fail_at_call(monkeypatch, k: int):
 
 def test_failed_run_resumes_into_a_second_recording(tmp_path, monkeypatch):
     run = tmp_path / "run"
-    cfg = _cfg("scene=hanging_sheet", "mode=adaptive", "frames=5", "output.checkpoint_every=2", "output.progress=false",
-               "output.states_every=0")
+    cfg = compose_config("scene=hanging_sheet", "mode=adaptive", "frames=5", "output.checkpoint_every=2",
+                         "output.progress=false", "output.states_every=0")
     with monkeypatch.context() as m:
         _fail_at_call(m, 4)  # frames 1-3 done, checkpoint at frame 2
         with pytest.raises(RuntimeError, match="simulated crash"):
@@ -220,8 +213,8 @@ def test_failed_run_resumes_into_a_second_recording(tmp_path, monkeypatch):
 
 def test_crowd_resumes_each_character_from_its_own_checkpoint(tmp_path, monkeypatch):
     run = tmp_path / "crowd"
-    cfg = _cfg("scene=multiple_dancers", "mode=viewdep", "scene.params.count=2", "crowd_jobs=1", "frames=4",
-               "output.checkpoint_every=2", *QUIET)
+    cfg = compose_config("scene=multiple_dancers", "mode=viewdep", "scene.params.count=2", "crowd_jobs=1", "frames=4",
+                         "output.checkpoint_every=2", *NO_OUTPUT)
     with monkeypatch.context() as m:
         _fail_at_call(m, 7)  # dancer_00 completes (4 calls); dancer_01 fails advancing frame 2 -> 3
         with pytest.raises(RuntimeError, match="simulated crash"):
@@ -254,5 +247,5 @@ def test_resume_refuses_completed_and_checkpointless_folders(finished_run, tmp_p
 
 def test_bad_checkpoint_interval_is_a_config_error(tmp_path):
     with pytest.raises(ConfigError, match=r"^output.checkpoint_every: must be an integer >= 0"):
-        run_from_config(_cfg("scene=hanging_sheet", "output.checkpoint_every=-1", *QUIET), tmp_path / "run")
+        run_config(tmp_path / "run", "scene=hanging_sheet", "output.checkpoint_every=-1", *NO_OUTPUT)
     assert not (tmp_path / "run").exists()

@@ -1,4 +1,4 @@
-"""Screen-space accuracy (cloth.screenspace, experiments.accuracy): the z-buffer rasteriser on
+"""Screen-space accuracy (cloth.eval.screenspace, experiments.accuracy): the z-buffer rasteriser on
 hand-computed cases, the error measures on known shifts, the distance to a mesh against brute
 force, per-frame states, and the accuracy CLI on two tiny real runs."""
 
@@ -12,15 +12,24 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from helpers import QUIET, run_config
 
-from cloth.ccd import point_triangle_closest
-from cloth.obstacles import Plane, Sphere
-from cloth.screenspace import (CLOTH, EMPTY, OCCLUDER, StateError, frame_errors, load_state, merge_states,
-                               occluder_mesh, offscreen_distance, point_mesh_distance, rasterize, render_frame,
-                               save_state)
-from cloth.view import Camera
+from cloth.collision.ccd import point_triangle_closest
+from cloth.collision.nearest import point_mesh_distance
+from cloth.collision.obstacles import Plane, Sphere
+from cloth.eval.screenspace import (
+    CLOTH,
+    EMPTY,
+    OCCLUDER,
+    frame_errors,
+    occluder_mesh,
+    offscreen_distance,
+    rasterize,
+    render_frame,
+)
+from cloth.io.states import StateError, load_state, merge_states, save_state
+from cloth.view.camera import Camera
 
-ROOT = Path(__file__).resolve().parents[1]
 ROUNDOFF = 1e-9  # exact cases: only floating-point round-off remains
 # Edges are sampled at pixel centres: a silhouette moves by whole rendered pixels, so a shift that
 # is not a whole number of pixels is measured to within half a pixel.
@@ -231,23 +240,17 @@ def test_bad_state_file_names_the_file(tmp_path):
 
 # ---- the accuracy CLI on two tiny real runs ----------------------------------------------------
 
-TINY = ["scene=sheet_on_sphere", "camera=sheet_half", "frames=3", "output.rerun=false", "output.progress=false"]
+TINY = ["scene=sheet_on_sphere", "camera=sheet_half", "frames=3", *QUIET]
 
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    from hydra import compose, initialize_config_dir
-
-    from experiments.run import run_from_config
-
-    def cfg(*overrides):
-        with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
-            return compose(config_name="config", overrides=[*TINY, *overrides])
-
+    """A coarse run and its finer reference (run folders with per-frame states), made once and
+    only read: a test that writes into a run (the accuracy CLI does) works on a copy."""
     base = tmp_path_factory.mktemp("accuracy")
     run, ref = base / "run", base / "ref"
-    run_from_config(cfg("mode=nonadaptive", "scene.scales.small.resolution=8"), run)
-    run_from_config(cfg("mode=nonadaptive", "scene.scales.small.resolution=12"), ref)  # the finer one
+    run_config(run, *TINY, "mode=nonadaptive", "scene.scales.small.resolution=8")
+    run_config(ref, *TINY, "mode=nonadaptive", "scene.scales.small.resolution=12")  # the finer one
     return run, ref
 
 
@@ -261,10 +264,11 @@ def test_runs_write_a_state_per_frame(runs):
     assert s["node_x"].dtype == np.float64 and np.all(np.isfinite(s["node_x"]))
 
 
-def test_accuracy_cli_writes_its_files(runs, capsys):
+def test_accuracy_cli_writes_its_files(runs, tmp_path, capsys):
     from experiments.accuracy import COLUMNS, main
 
     run, ref = runs
+    run = _copy_with(run, tmp_path / "run")  # the CLI writes its files into the run folder
     assert main([str(run), "--reference", str(ref), "--resolution-scale", "0.25"]) == 0
     table = pd.read_parquet(run / "accuracy.parquet")
     assert list(table.columns) == list(COLUMNS) and table["frame"].tolist() == [0, 1, 2, 3]
@@ -310,8 +314,6 @@ def test_mismatched_reference_is_rejected_before_any_work(runs, tmp_path, capsys
 
     run, ref = runs
     run = _copy_with(run, tmp_path / "run")
-    for f in ("accuracy.parquet", "accuracy.json"):
-        (run / f).unlink(missing_ok=True)
     bad = _copy_with(ref, tmp_path / "bad_ref", edit)
     assert main([str(run), "--reference", str(bad)]) == 2
     err = capsys.readouterr().err

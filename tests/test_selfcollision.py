@@ -5,16 +5,18 @@ does not declare it; layered sheets stay apart in the frame loop in all modes.""
 
 import numpy as np
 import pytest
+from helpers import build_sim, count_crossings, two_sheets
 
-from cloth.bvh import cross_overlaps, face_boxes, self_overlaps
-from cloth.ccd import point_triangle_closest
-from cloth.material import Material
-from cloth.mesh import grid_mesh, merge_meshes
-from cloth.scenes import layered_sheets
-from cloth.selfcollision import (CCD_ETA_FRACTION, SelfCollisionParams, _ccd_pass, candidate_pairs,
-                                 resolve_self_collisions)
+from cloth.collision.bvh import cross_overlaps, face_boxes, self_overlaps
+from cloth.collision.candidates import candidate_pairs
+from cloth.collision.ccd import point_triangle_closest
+from cloth.collision.response import ccd_pass
+from cloth.collision.selfcollision import CCD_ETA_FRACTION, SelfCollisionParams, resolve_self_collisions
+from cloth.collision.untangle import find_intersections, untangle
+from cloth.core.material import Material
+from cloth.core.mesh import grid_mesh, merge_meshes
+from cloth.scenes.registry import layered_sheets
 from cloth.simulation import Simulation
-from cloth.untangle import find_intersections, untangle
 
 COTTON = Material("cotton", density=0.12, youngs_modulus=2.0e3, poisson_ratio=0.3, bending_stiffness=2e-6,
                   damping_mass=0.1, damping_stiffness=0.0)
@@ -33,16 +35,8 @@ def ccd_hits(mesh, x0, x1, thickness=THICKNESS):
     vf, ee = candidate_pairs(mesh.face_nodes, mesh.face_edges, mesh.edge_nodes, x0, x1, eta)
     hits = np.empty((len(vf) + len(ee), 4), dtype=np.int64)
     inv_m = np.ones(mesh.n_nodes)
-    return _ccd_pass(vf, ee, mesh.face_nodes, mesh.edge_nodes, x0, x1.copy(), inv_m, eta, 0.0, False, hits,
-                     np.zeros(x0.shape[0] + 1, dtype=bool))
-
-
-def two_sheets(n=6, gap=0.02, size=0.3, shift=(0.013, 0.007)):
-    lower = grid_mesh(size, size, n, n, origin=(0.0, 0.0, 0.0))
-    upper = grid_mesh(size * 0.8, size * 0.8, n, n, origin=(0.03 + shift[0], 0.03 + shift[1], gap))
-    mesh = merge_meshes([lower, upper])
-    mesh.update_rest_data(COTTON.density)
-    return mesh, lower.n_nodes
+    return ccd_pass(vf, ee, mesh.face_nodes, mesh.edge_nodes, x0, x1.copy(), inv_m, eta, 0.0, False, hits,
+                    np.zeros(x0.shape[0] + 1, dtype=bool))
 
 
 # ------------------------------------------------------------------------------------------
@@ -170,7 +164,8 @@ def test_contour_length_gradient_matches_finite_differences():
         xp, xm = x.copy(), x.copy()
         xp[n_flat:] += e
         xm[n_flat:] -= e
-        fd = (find_intersections(mesh.face_nodes, xp)[1].sum() - find_intersections(mesh.face_nodes, xm)[1].sum()) / (2 * FD_STEP)
+        fd = ((find_intersections(mesh.face_nodes, xp)[1].sum() - find_intersections(mesh.face_nodes, xm)[1].sum())
+              / (2 * FD_STEP))
         analytic = g[n_flat:, d].sum()
         assert abs(fd - analytic) <= FD_REL_TOL * max(1.0, abs(fd)), (d, fd, analytic)
 
@@ -218,15 +213,11 @@ def test_untangle_reports_what_it_cannot_fix():
 FRAMES = 25  # the upper sheet lands on the lower one on the sphere within ~15 frames
 
 
-def crossings(sim):
-    return len(find_intersections(sim.mesh.face_nodes, sim.mesh.node_x)[0])
-
-
 def test_layered_sheets_stay_apart_and_without_the_effect_they_cross():
     sim = Simulation(layered_sheets(COTTON, resolution=8))
     for _ in range(FRAMES):
         rec = sim.advance_frame()
-        assert crossings(sim) == 0, rec["frame"]
+        assert count_crossings(sim.mesh) == 0, rec["frame"]
         assert rec["self_collisions_left"] == 0
     assert rec["self_proximity"] > 0  # the layers are in contact at the end
     effects = set(sim.scene.effects) - {"self_collision"}
@@ -234,18 +225,17 @@ def test_layered_sheets_stay_apart_and_without_the_effect_they_cross():
     assert bare.self_collision is None
     for _ in range(FRAMES):
         bare.advance_frame()
-    assert crossings(bare) > 0
+    assert count_crossings(bare.mesh) > 0
 
 
 def test_scene_without_the_effect_never_calls_it(monkeypatch):
-    import cloth.selfcollision as sc
-    import cloth.untangle as ut
+    import cloth.simulation as frame_loop
 
     def boom(*a, **k):
         raise AssertionError("self-collision ran in a scene that does not declare it")
 
-    monkeypatch.setattr(sc, "resolve_self_collisions", boom)
-    monkeypatch.setattr(ut, "untangle", boom)
+    monkeypatch.setattr(frame_loop, "resolve_self_collisions", boom)
+    monkeypatch.setattr(frame_loop, "untangle", boom)
     effects = ("membrane", "bending", "gravity", "damping", "obstacles")
     sim = Simulation(layered_sheets(COTTON, resolution=4, effects=effects))
     rec = sim.advance_frame()
@@ -255,19 +245,11 @@ def test_scene_without_the_effect_never_calls_it(monkeypatch):
 @pytest.mark.parametrize("mode,camera", [("adaptive", "none"), ("viewdep", "sheet_half")])
 def test_layered_sheets_adaptive_modes_untangle_after_remesh(mode, camera):
     """In the adaptive modes the remesh moves the layers; untangling and CCD keep them apart."""
-    from pathlib import Path
-
-    from hydra import compose, initialize_config_dir
-
-    from experiments.build import build_simulation
-    conf = str(Path(__file__).resolve().parents[1] / "conf")
-    with initialize_config_dir(config_dir=conf, version_base="1.3"):
-        cfg = compose(config_name="config", overrides=["scene=layered_sheets", f"mode={mode}", f"camera={camera}"])
-    sim = build_simulation(cfg)[0]
+    sim = build_sim("scene=layered_sheets", f"mode={mode}", f"camera={camera}")
     for _ in range(FRAMES):
         rec = sim.advance_frame()
         assert rec["intersections_left"] == 0 and rec["self_collisions_left"] == 0, rec["frame"]
-        assert crossings(sim) == 0, rec["frame"]
+        assert count_crossings(sim.mesh) == 0, rec["frame"]
     assert rec["remeshed"] == 1
 
 
@@ -275,7 +257,7 @@ def test_untangle_moves_no_node_beyond_its_bound_and_keeps_the_best_state():
     """A tangle too deep to fix (the open hem through a sheet, at a thickness whose move bound
     is far below the crossing's depth): every node stays within MAX_MOVE_THICKNESSES thicknesses
     of where it was, and what is left is never more than what was found."""
-    from cloth.untangle import MAX_MOVE_THICKNESSES
+    from cloth.collision.untangle import MAX_MOVE_THICKNESSES
     mesh, _ = crossed_sheets()
     x = mesh.node_x
     x0 = x.copy()
@@ -303,7 +285,7 @@ def test_collision_response_cannot_make_a_node_faster_than_the_guard():
     v_before = float(np.sqrt(np.max(np.einsum("ij,ij->i", mesh.node_v, mesh.node_v))))
     stats = {k: 0 for k in ("self_velocity_clamped", "self_proximity", "self_ccd_hits", "self_ccd_passes",
                             "impact_zones", "impact_zone_rounds", "self_collisions_left")}
-    sim._resolve_self_collisions(x_start, h, stats)
+    sim.resolve_collisions(x_start, h, stats)
     v_after = float(np.sqrt(np.max(np.einsum("ij,ij->i", mesh.node_v, mesh.node_v))))
     assert v_after <= v_before + sim.self_collision.thickness / h + 1e-9
     assert stats["self_ccd_hits"] + stats["self_proximity"] > 0  # the layers did collide
@@ -315,7 +297,7 @@ def test_remesh_motion_is_made_collision_free():
     down through the lower one, ends above it with no crossing, and velocities are untouched."""
     from types import SimpleNamespace
 
-    from cloth.adaptive import collision_free_motion
+    from cloth.remeshing.adaptive import collision_free_motion
     mesh, n_lower = two_sheets()
     x_from = mesh.node_x.copy()
     upper = np.arange(n_lower, mesh.n_nodes)

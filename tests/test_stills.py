@@ -8,7 +8,7 @@ from matplotlib.figure import Figure
 from matplotlib.image import imread
 
 from cloth.io.stills import draw_view, outside_camera, render_still
-from cloth.view import Camera
+from cloth.view.camera import Camera
 
 CAM = Camera(position=(0.0, -3.0, 0.0), look_at=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0), fov_y_deg=40.0,
              width=160, height=120)

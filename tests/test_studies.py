@@ -10,24 +10,20 @@ against the reference run and aggregates the folders into tables.
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import yaml
-from hydra import compose, initialize_config_dir
+from helpers import ROOT, compose_config, config_choices, run_module
 
-ROOT = Path(__file__).resolve().parents[1]
-CONF = str(ROOT / "conf")
-EXPERIMENTS = sorted(p.stem for p in (ROOT / "conf" / "experiment").glob("*.yaml"))
+EXPERIMENTS = config_choices("experiment")
 # A tiny multirun: 2 frames of the sheet dropped on a sphere, no recording.
 TINY = ["scene=sheet_on_sphere", "frames=2", "output.rerun=false", "output.progress=false"]
 
 
 def _sweep(experiment: str) -> dict:
-    params = yaml.safe_load((ROOT / "conf" / "experiment" / f"{experiment}.yaml").read_text())["hydra"]["sweeper"]["params"]
+    preset = yaml.safe_load((ROOT / "conf" / "experiment" / f"{experiment}.yaml").read_text())
+    params = preset["hydra"]["sweeper"]["params"]
     return {k: [v.strip() for v in str(vals).split(",")] for k, vals in params.items()}
 
 
@@ -51,47 +47,44 @@ def test_every_point_of_every_preset_validates(experiment):
     from experiments.build import build_simulation, crowd_size
 
     seen = set()
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        for overrides in _runs(experiment):
-            for scale in ("small", "paper"):
-                cfg = compose(config_name="config", overrides=overrides + [f"scale={scale}"])
-                assert cfg.study == experiment
-                assert cfg.variant, f"{overrides}: every point names its variant"
-                point = overrides[-1].split("=", 1)[1]
-                if point != "reference":
-                    assert not cfg.reference
-                else:
-                    assert cfg.reference and cfg.mode.name == "nonadaptive"
-                key = (cfg.scene.name, point, scale)
-                if scale == "paper" or key in seen:  # building paper-scale meshes is slow; small checks every key
-                    continue
-                seen.add(key)
-                crowd_size(cfg)
-                build_simulation(cfg, character=0 if cfg.scene.name == "multiple_dancers" else None)
+    for overrides in _runs(experiment):
+        for scale in ("small", "paper"):
+            cfg = compose_config(*overrides, f"scale={scale}")
+            assert cfg.study == experiment
+            assert cfg.variant, f"{overrides}: every point names its variant"
+            point = overrides[-1].split("=", 1)[1]
+            if point != "reference":
+                assert not cfg.reference
+            else:
+                assert cfg.reference and cfg.mode.name == "nonadaptive"
+            key = (cfg.scene.name, point, scale)
+            if scale == "paper" or key in seen:  # building paper-scale meshes is slow; small checks every key
+                continue
+            seen.add(key)
+            crowd_size(cfg)
+            build_simulation(cfg, character=0 if cfg.scene.name == "multiple_dancers" else None)
 
 
 def test_sweep_points_set_what_they_name():
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        def cfg(point):
-            return compose(config_name="config", overrides=["scene=solo_dancer", f"+point={point}"])
-        assert cfg("nu_out/0.001").mode.view.nu_out == 0.001
-        assert cfg("k/50").mode.buckling.k == 50
-        assert cfg("T/0").mode.view.anticipation_frames == 0
-        assert cfg("margin/0.8").mode.view.margin == 0.8
-        assert cfg("buckling/none").mode.buckling is None
-        assert cfg("buckling/uniform").mode.buckling.mode == "uniform"
-        assert cfg("anticipation/off").mode.view.anticipation is False
-        assert cfg("adaptive").mode.name == "adaptive"
-        ref = cfg("reference")
-        assert ref.reference and ref.mode.name == "nonadaptive"
+    def cfg(point):
+        return compose_config("scene=solo_dancer", f"+point={point}")
+    assert cfg("nu_out/0.001").mode.view.nu_out == 0.001
+    assert cfg("k/50").mode.buckling.k == 50
+    assert cfg("T/0").mode.view.anticipation_frames == 0
+    assert cfg("margin/0.8").mode.view.margin == 0.8
+    assert cfg("buckling/none").mode.buckling is None
+    assert cfg("buckling/uniform").mode.buckling.mode == "uniform"
+    assert cfg("anticipation/off").mode.view.anticipation is False
+    assert cfg("adaptive").mode.name == "adaptive"
+    ref = cfg("reference")
+    assert ref.reference and ref.mode.name == "nonadaptive"
 
 
 def _multirun(tmp_path: Path, *overrides: str, env=None, timeout=600) -> Path:
     sweep = tmp_path / "sweep"
-    cmd = [sys.executable, "-m", "experiments.run", "-m", *TINY, *overrides, f"hydra.sweep.dir={sweep}"]
-    full_env = {**os.environ, **(env or {})}
-    full_env.pop("RAY_ADDRESS", None)  # a Ray run here starts its own local instance
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=timeout, env=full_env)
+    # RAY_ADDRESS unset: a Ray run here starts its own local instance
+    proc = run_module("experiments.run", "-m", *TINY, *overrides, f"hydra.sweep.dir={sweep}",
+                      env={**(env or {}), "RAY_ADDRESS": None}, timeout=timeout)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return sweep
 
@@ -128,8 +121,7 @@ def test_submitit_local_launcher(tmp_path):
 
 
 def test_slurm_preset_selects_the_submitit_slurm_launcher():
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        cfg = compose(config_name="config", overrides=["cluster=slurm"], return_hydra_config=True)
+    cfg = compose_config("cluster=slurm", return_hydra_config=True)
     assert "SlurmLauncher" in cfg.hydra.launcher._target_
     assert cfg.hydra.launcher.cpus_per_task >= 1
 
@@ -156,8 +148,7 @@ def test_main_job_warms_the_kernel_cache_before_any_study(tmp_path, monkeypatch)
     assert "+experiment=table1" in calls[1] and "+experiment=accuracy" in calls[2]
     assert calls[3][2] == "paper_figures"
     overrides = [a for a in paper.WARMUP[3:]]
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        cfg = compose(config_name="config", overrides=overrides)
+    cfg = compose_config(*overrides)
     assert cfg.scene.name == "karate" and cfg.mode.name == "viewdep"
 
 
@@ -165,9 +156,8 @@ def test_a_preset_runs_as_a_multirun_and_its_callback_aggregates(tmp_path):
     """An experiment preset end to end (2 frames): its points run through the default launcher,
     the study callback measures them against the reference and writes the study's figures."""
     sweep = tmp_path / "sweep"
-    cmd = [sys.executable, "-m", "experiments.run", "-m", "+experiment=ablation_anticipation", "frames=2",
-           f"hydra.sweep.dir={sweep}"]
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900)
+    proc = run_module("experiments.run", "-m", "+experiment=ablation_anticipation", "frames=2",
+                      f"hydra.sweep.dir={sweep}", timeout=900)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     runs = _completed(sweep)
     cfgs = [yaml.safe_load((r / "config.yaml").read_text()) for r in runs]

@@ -2,26 +2,16 @@
 modes untangle crossings by contour minimisation, and a run whose untangling cannot finish goes
 on from its best state and says in every frame's record what is left (it never aborts)."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
+from helpers import build_sim, count_crossings
 
 import cloth.simulation as simulation
-from cloth.untangle import find_intersections
-from experiments.build import build_simulation
 
-CONF = str(Path(__file__).resolve().parents[1] / "conf")
+LAYERED = ("scene=layered_sheets", "output.rerun=false")
 BUMP_DEPTH = 0.02  # m below the lower sheet: a closed crossing well within the untangling's move bound
 BUMP_WIDTH = 0.05  # m, the bump's Gaussian radius (a few faces of the 12x12 sheets)
 FRAMES = 4
-
-
-def _sim(*overrides):
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        cfg = compose(config_name="config", overrides=["scene=layered_sheets", "output.rerun=false", *overrides])
-    return build_simulation(cfg)[0]
 
 
 def _push_a_bump_through(sim):
@@ -31,13 +21,9 @@ def _push_a_bump_through(sim):
     c = x[upper, :2] - x[upper, :2].mean(axis=0)
     gap = x[upper, 2].min() - x[~upper, 2].max()
     x[upper, 2] -= (gap + BUMP_DEPTH) * np.exp(-np.sum(c ** 2, axis=1) / (2 * BUMP_WIDTH ** 2))
-    n = len(find_intersections(sim.mesh.face_nodes, x)[0])
+    n = count_crossings(sim.mesh)
     assert n > 0
     return n
-
-
-def _crossings(sim):
-    return len(find_intersections(sim.mesh.face_nodes, sim.mesh.node_x)[0])
 
 
 @pytest.mark.parametrize("mode, camera", [("adaptive", "none"), ("viewdep", "sheet_half")])
@@ -50,17 +36,17 @@ def test_the_frame_loop_untangles_after_a_remesh(monkeypatch, mode, camera):
         return original(self, stats)
 
     monkeypatch.setattr(simulation.Simulation, "untangle", spy)
-    sim = _sim(f"mode={mode}", f"camera={camera}")
+    sim = build_sim(*LAYERED, f"mode={mode}", f"camera={camera}")
     _push_a_bump_through(sim)
     rec = sim.advance_frame()
     assert calls == [0]  # the first frame's remesh was followed by the untangling
     assert rec["intersections_found"] > 0 and rec["intersections_left"] == 0
-    assert _crossings(sim) == 0
+    assert count_crossings(sim.mesh) == 0
 
 
 def test_a_run_whose_untangling_cannot_finish_goes_on_and_records_what_is_left(monkeypatch):
     monkeypatch.setattr(simulation, "UNTANGLE_ITERATIONS", 0)  # the untangling finds but never moves
-    sim = _sim("mode=adaptive")
+    sim = build_sim(*LAYERED, "mode=adaptive")
     _push_a_bump_through(sim)
     rec = sim.advance_frame()
     assert rec["remeshed"] == 1 and rec["intersections_left"] > 0
@@ -75,4 +61,4 @@ def test_a_run_whose_untangling_cannot_finish_goes_on_and_records_what_is_left(m
     # once the bound allows it, the next frame's untangling removes what was left
     monkeypatch.setattr(simulation, "UNTANGLE_ITERATIONS", 30)
     rec = sim.advance_frame()
-    assert rec["intersections_left"] == 0 and _crossings(sim) == 0
+    assert rec["intersections_left"] == 0 and count_crossings(sim.mesh) == 0

@@ -5,9 +5,15 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from cloth.camera import CutPath, KeyframePath, OrbitPath, StaticPath, path_from_config
-from cloth.view import (Camera, ViewError, anticipated_view_factor, resample_silhouette, scale_sizing,
-                        screen_space_clamp, spatial_view_factor)
+from cloth.view.camera import Camera, ViewError
+from cloth.view.factors import (
+    anticipated_view_factor,
+    resample_silhouette,
+    scale_sizing,
+    screen_space_clamp,
+    spatial_view_factor,
+)
+from cloth.view.paths import CutPath, KeyframePath, OrbitPath, StaticPath, path_from_config
 
 ROUNDOFF = 1e-9
 # Rebuilding a 2x2 tensor from its eigen-decomposition (and through S^-1, S) loses ~cond(S)^2 eps.
@@ -51,7 +57,7 @@ def test_frustum_corners_project_to_the_image_corners_at_near_and_far():
 def _qp_distance(cam, p):
     """Reference: minimise |q - p|^2 over the frustum written as 6 half-spaces (camera coordinates)."""
     c = cam.to_camera(p[None])[0]
-    tx, ty = cam._tan
+    tx, ty = cam.tan_half_fov
     cons = [{"type": "ineq", "fun": lambda q: q[2] - cam.near},
             {"type": "ineq", "fun": lambda q: cam.far - q[2]},
             {"type": "ineq", "fun": lambda q: tx * q[2] - q[0]},
@@ -80,7 +86,7 @@ def test_beyond_a_corner_the_distance_exceeds_the_largest_plane_distance():
     cam = _camera()
     c = cam.frustum_corners()
     fwd, right, up = cam._forward, cam._right, np.cross(cam._right, cam._forward)
-    tx, ty = cam._tan
+    tx, ty = cam.tan_half_fov
     # outward unit normals of the far, right and top planes, which meet at the far top-right corner c[5]
     normals = [fwd, right - tx * fwd, up - ty * fwd]
     normals = [n / np.linalg.norm(n) for n in normals]
@@ -155,7 +161,7 @@ def test_anticipated_view_factor_accepts_taus_built_from_the_frame_time():
 
 
 def test_scale_sizing_and_filter_strain_take_a_scalar_and_a_single_tensor():
-    from cloth.buckling import filter_strain
+    from cloth.physics.buckling import filter_strain
     M = _random_spd(np.random.default_rng(3), 4)
     assert np.allclose(scale_sizing(M, 0.5), 0.25 * M)
     E = np.array([[0.1, 0.0], [0.0, -0.2]])

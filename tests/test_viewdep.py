@@ -1,17 +1,14 @@
 """mode=viewdep end to end: config checks, what the seen and unseen parts of a draped sheet get,
 anticipation of a jump cut, buckling compensation as a stage, and a long run under a moving camera."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
+from helpers import build_sim
 
-from cloth.view import face_view_data
-from cloth.viewdep import face_geometry
-from experiments.build import ConfigError, build_simulation
+from cloth.view.factors import face_geometry, face_view_data
+from experiments.build import ConfigError
 
-CONF = str(Path(__file__).resolve().parents[1] / "conf")
+SPHERE = "scene=sheet_on_sphere"
 CONTACT_SLACK = 1e-9  # contact leaves nodes at the thickness up to round-off
 # The scene's sheet is 1 m across, smaller than the paper's 0.4 m margin suits; with m = 0.1 m most
 # of the unseen half lies beyond the margin, where nu = nu_out.
@@ -30,12 +27,6 @@ COARSEN_FACTOR = 10.0
 # own change over it: folds deepen) stretch some past that (measured: 95th percentile 1.25). Without
 # anticipation the same edges are sized for nu_out (measured: ~20).
 FULL_RESOLUTION_S = 1.5
-
-
-def _sim(*overrides):
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        cfg = compose(config_name="config", overrides=["scene=sheet_on_sphere", *overrides])
-    return build_simulation(cfg)[0]
 
 
 # Regions by material coordinates (the sheet is [0, 1]^2 m in material space, x_world ~ u - 0.5 m
@@ -57,23 +48,25 @@ def _faces_touching(sim, region):
 
 def test_viewdep_without_a_camera_is_a_config_error_naming_it():
     with pytest.raises(ConfigError, match="camera"):
-        _sim("mode=viewdep")
+        build_sim(SPHERE, "mode=viewdep")
     with pytest.raises(ConfigError, match="mode.buckling"):
-        _sim("mode=adaptive", "+mode.buckling={k: 10}")
+        build_sim(SPHERE, "mode=adaptive", "+mode.buckling={k: 10}")
     with pytest.raises(ConfigError, match="mode.view"):
-        _sim("mode=viewdep", "camera=sheet_half", "mode.view.nu_out=0")
+        build_sim(SPHERE, "mode=viewdep", "camera=sheet_half", "mode.view.nu_out=0")
 
 
 @pytest.fixture(scope="module")
 def adaptive_at_cut():
-    sim = _sim("mode=adaptive", "camera=sheet_half")
+    """mode=adaptive's sheet at CUT_FRAME, the reference of the view-dependent one; run once and
+    only read."""
+    sim = build_sim(SPHERE, "mode=adaptive", "camera=sheet_half")
     while sim.frame < CUT_FRAME:
         sim.advance_frame()
     return sim
 
 
 def test_a_static_camera_on_half_the_sheet(adaptive_at_cut):
-    sim = _sim("mode=viewdep", "camera=sheet_half", MARGIN)
+    sim = build_sim(SPHERE, "mode=viewdep", "camera=sheet_half", MARGIN)
     rows = [sim.advance_frame() for _ in range(CUT_FRAME)]
     seen, seen_ref = _verts_in(sim, EAST), _verts_in(adaptive_at_cut, EAST)
     assert seen >= KEEP_FRACTION * seen_ref, (seen, seen_ref)
@@ -88,15 +81,15 @@ def test_a_static_camera_on_half_the_sheet(adaptive_at_cut):
 
 def test_anticipation_refines_before_a_jump_cut():
     """At the first image of the new shot, the newly visible side is resolved to its full sizing."""
-    from cloth.adaptive import AdaptiveRemesher
-    from cloth.sizing import face_edge_sizes, face_to_vert_sizing
+    from cloth.remeshing.adaptive import AdaptiveRemesher
+    from cloth.remeshing.sizing import face_edge_sizes, face_to_vert_sizing
 
     # conf/camera/sheet_cut.yaml: the +x half, then at frame 30 (1.2 s) a jump cut to the -x half
     worst = {}
     for anticipation in (True, False):
         # the contact floor off: on the sphere it would keep the unseen side at size_max either way
-        sim = _sim("mode=viewdep", "camera=sheet_cut", MARGIN, f"mode.view.anticipation={str(anticipation).lower()}",
-                   "mode.view.contact_size=null")
+        sim = build_sim(SPHERE, "mode=viewdep", "camera=sheet_cut", MARGIN,
+                        f"mode.view.anticipation={str(anticipation).lower()}", "mode.view.contact_size=null")
         assert sim.scene.camera.cuts == (CUT_FRAME * sim.scene.frame_time,)
         while sim.frame < CUT_FRAME:
             sim.advance_frame()
@@ -118,7 +111,7 @@ def test_anticipation_refines_before_a_jump_cut():
 
 
 def test_buckling_compensation_sets_alpha_on_out_of_frustum_faces_only():
-    sim = _sim("mode=adaptive", "camera=sheet_half", "+mode.buckling={k: 10}")
+    sim = build_sim(SPHERE, "mode=adaptive", "camera=sheet_half", "+mode.buckling={k: 10}")
     for _ in range(12):
         sim.advance_frame()
     sim.update_buckling()  # alpha is set at the frame's start; the cloth has moved since
@@ -136,8 +129,8 @@ def test_buckling_compensation_sets_alpha_on_out_of_frustum_faces_only():
 
 def test_long_viewdep_run_under_an_orbit_with_a_cut_stays_finite_and_outside_obstacles():
     # coarse sizing keeps it short; the orbit turns once a second, the cut comes at frame 30
-    sim = _sim("mode=viewdep", "camera=orbit_cut", "scene.scales.small.sizing.size_min=0.08",
-               "scene.scales.small.resolution=12")
+    sim = build_sim(SPHERE, "mode=viewdep", "camera=orbit_cut", "scene.scales.small.sizing.size_min=0.08",
+                    "scene.scales.small.resolution=12")
     for _ in range(200):
         rec = sim.advance_frame()
         assert np.isfinite(rec["kinetic_energy_j"])
@@ -159,7 +152,7 @@ def test_records_and_recording_with_a_camera(tmp_path):
         def close(self):
             pass
 
-    sim = _sim("mode=viewdep", "camera=sheet_half", "output.rerun=false")
+    sim = build_sim(SPHERE, "mode=viewdep", "camera=sheet_half", "output.rerun=false")
     rec = Capture()
     run(sim, 8, tmp_path, recorder=rec)
     import pandas as pd
@@ -175,7 +168,7 @@ def test_records_and_recording_with_a_camera(tmp_path):
     blue = np.isclose(colors[:, 2], 0.95)  # visible faces are blue (cloth.runner.VISIBLE_RGB)
     assert blue.sum() == frames.faces_in_view.iloc[-1]
     # without a camera the view columns are NaN and the cloth has one colour
-    sim = _sim("mode=adaptive")
+    sim = build_sim(SPHERE, "mode=adaptive")
     rec = Capture()
     run(sim, 2, tmp_path / "nocam", recorder=rec)
     frames = pd.read_parquet(tmp_path / "nocam" / "frames.parquet")
@@ -185,9 +178,9 @@ def test_records_and_recording_with_a_camera(tmp_path):
 
 def test_bad_camera_config_is_named():
     with pytest.raises(ConfigError, match="camera"):
-        _sim("mode=viewdep", "camera=sheet_half", "camera.type=dolly")
+        build_sim(SPHERE, "mode=viewdep", "camera=sheet_half", "camera.type=dolly")
     with pytest.raises(ConfigError, match="camera"):
-        _sim("mode=viewdep", "camera=sheet_half", "camera.camera.fov_y_deg=200")
+        build_sim(SPHERE, "mode=viewdep", "camera=sheet_half", "camera.camera.fov_y_deg=200")
 
 
 def test_contact_floor_keeps_faces_near_obstacles_no_coarser_than_contact_size():
@@ -197,9 +190,9 @@ def test_contact_floor_keeps_faces_near_obstacles_no_coarser_than_contact_size()
     contact_size = null switches the floor off."""
     import dataclasses
 
-    from cloth.view import ViewError
-    from cloth.viewdep import ViewParams
-    sim = _sim("mode=viewdep", "camera=sheet_half", "mode.view.nu_out=0.001", MARGIN)
+    from cloth.view.camera import ViewError
+    from cloth.view.viewdep import ViewParams
+    sim = build_sim(SPHERE, "mode=viewdep", "camera=sheet_half", "mode.view.nu_out=0.001", MARGIN)
     for _ in range(14):  # the sheet lands on the sphere
         sim.advance_frame()
     rem = sim.remesher
@@ -228,7 +221,7 @@ def test_the_recording_holds_the_camera_as_a_pinhole_with_its_pose(tmp_path):
 
     from cloth.io.recorder import RerunRecorder
     from cloth.runner import run
-    sim = _sim("mode=viewdep", "camera=sheet_half")
+    sim = build_sim(SPHERE, "mode=viewdep", "camera=sheet_half")
     run(sim, 2, tmp_path, recorder=RerunRecorder(tmp_path / "recording.rrd", app_id="test"))
     out = subprocess.run([sys.executable, "-m", "rerun", "rrd", "print", str(tmp_path / "recording.rrd")],
                          capture_output=True, text=True, timeout=120)

@@ -16,19 +16,22 @@ The **final state** (``final_state.npz``) is written when a run completes: node 
 velocities, material coordinates and faces in float64, so that a replay can demand identical
 positions without unpickling code objects of an older version.
 
+Pickles name the module of every class they hold. Checkpoints written before the package was
+split into subpackages (``cloth.mesh``, ``cloth.adaptive``, ...) still load: the unpickler maps
+those module names to today's (``MOVED_MODULES``).
+
 Pickles run code when loaded: load checkpoints only from run folders you made.
 """
 
 from __future__ import annotations
 
-import os
 import pickle
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from .manifest import _atomic_path, code_version, write_json_atomic
+from cloth.io.manifest import atomic_write, code_version, write_json_atomic
 
 CHECKPOINT_FORMAT = 1  # bump when the pickled payload's layout changes
 CHECKPOINT_DIR = "checkpoint"
@@ -36,6 +39,36 @@ CHECKPOINT_FILE = "state.pkl"
 CHECKPOINT_INFO = "state.json"  # frame, time and code of the latest checkpoint, for people and tools
 FINAL_STATE_FILE = "final_state.npz"
 FINAL_STATE_FORMAT = 1
+
+
+# Modules of the flat package before it was split into subpackages -> where their names live now.
+MOVED_MODULES = {
+    "cloth.mesh": "cloth.core.mesh", "cloth.material": "cloth.core.material", "cloth.scene": "cloth.core.scene",
+    **{f"cloth.{m}": f"cloth.physics.{m}" for m in
+       ("membrane", "bending", "buckling", "forces", "assembly", "linsolve", "integrator")},
+    **{f"cloth.{m}": f"cloth.remeshing.{m}" for m in ("sizing", "remesh", "popfilter", "adaptive")},
+    "cloth.view": "cloth.view.factors", "cloth.camera": "cloth.view.paths", "cloth.viewdep": "cloth.view.viewdep",
+    **{f"cloth.{m}": f"cloth.collision.{m}" for m in
+       ("bvh", "ccd", "obstacles", "meshobstacle", "contact", "selfcollision", "untangle")},
+    "cloth.scenes": "cloth.scenes.registry", "cloth.character": "cloth.scenes.character",
+    "cloth.garments": "cloth.scenes.garments", "cloth.screenspace": "cloth.eval.screenspace",
+}
+# Names that left their module's successor: (old module, name) -> module.
+MOVED_NAMES = {
+    ("cloth.view", "Camera"): "cloth.view.camera", ("cloth.view", "ViewError"): "cloth.view.camera",
+    ("cloth.membrane", "lame_parameters"): "cloth.core.material",
+    ("cloth.viewdep", "face_geometry"): "cloth.view.factors",
+    ("cloth.meshobstacle", "SkinnedMannequin"): "cloth.scenes.bodies",
+}
+
+
+class _Unpickler(pickle.Unpickler):
+    """Reads pickles of any layout of the package since checkpoint format 1 (see MOVED_MODULES)."""
+
+    def find_class(self, module, name):
+        if module in MOVED_MODULES:
+            module = MOVED_NAMES.get((module, name), MOVED_MODULES[module])
+        return super().find_class(module, name)
 
 
 class CheckpointError(RuntimeError):
@@ -61,14 +94,10 @@ def save_checkpoint(run_dir, sim, rows: list) -> Path:
     Then state.json beside it (frame, time, code): informational, written after the pickle, so
     it may lag it by one checkpoint after a kill; loading reads only the pickle.
     """
-    path, tmp = _atomic_path(checkpoint_path(run_dir))
+    path = checkpoint_path(run_dir)
     info = {"format": CHECKPOINT_FORMAT, "frame": int(sim.frame), "time": float(sim.time), "code": code_version()}
-    try:
-        with open(tmp, "wb") as f:
-            pickle.dump({**info, "rows": list(rows), "sim": sim}, f, protocol=pickle.HIGHEST_PROTOCOL)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with atomic_write(path) as tmp, open(tmp, "wb") as f:
+        pickle.dump({**info, "rows": list(rows), "sim": sim}, f, protocol=pickle.HIGHEST_PROTOCOL)
     write_json_atomic(path.parent / CHECKPOINT_INFO, {**info, "file": CHECKPOINT_FILE, "bytes": path.stat().st_size})
     return path
 
@@ -80,7 +109,7 @@ def load_checkpoint(run_dir) -> Checkpoint:
         raise CheckpointError(f"{run_dir}: no checkpoint ({CHECKPOINT_DIR}/{CHECKPOINT_FILE} is missing)")
     try:
         with open(path, "rb") as f:
-            payload = pickle.load(f)
+            payload = _Unpickler(f).load()
     except Exception as exc:  # truncated file, class that no longer exists, ...
         raise CheckpointError(f"{path}: cannot be read ({type(exc).__name__}: {exc})") from None
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
@@ -109,16 +138,12 @@ def save_final_state(path, sim) -> Path:
     """``final_state.npz`` (atomic, uncompressed): format, frame, time (s), node_x (N, 3) m and
     node_v (N, 3) m/s float64, vert_u (V, 2) m float64, vert_node (V,), face_verts (F, 3)."""
     mesh = sim.mesh
-    path, tmp = _atomic_path(path)
-    try:
-        with open(tmp, "wb") as f:
-            np.savez(f, format=np.int32(FINAL_STATE_FORMAT), frame=np.int64(sim.frame), time=np.float64(sim.time),
-                     node_x=np.asarray(mesh.node_x, np.float64), node_v=np.asarray(mesh.node_v, np.float64),
-                     vert_u=np.asarray(mesh.vert_u, np.float64), vert_node=np.asarray(mesh.vert_node),
-                     face_verts=np.asarray(mesh.face_verts))
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    path = Path(path)
+    with atomic_write(path) as tmp, open(tmp, "wb") as f:
+        np.savez(f, format=np.int32(FINAL_STATE_FORMAT), frame=np.int64(sim.frame), time=np.float64(sim.time),
+                 node_x=np.asarray(mesh.node_x, np.float64), node_v=np.asarray(mesh.node_v, np.float64),
+                 vert_u=np.asarray(mesh.vert_u, np.float64), vert_node=np.asarray(mesh.vert_node),
+                 face_verts=np.asarray(mesh.face_verts))
     return path
 
 

@@ -1,27 +1,194 @@
-"""OBJ import and export through trimesh.
+"""OBJ files: cloth meshes (garments) and OBJ sequences (moving obstacles), read by one parser.
 
-Positions become nodes and texture coordinates become material coordinates (metres, after a
-scale), so a garment pattern laid out in UV space imports with its rest shape. trimesh gives a
-vertex per distinct (position, texture coordinate) pair; verts at exactly equal positions are
-merged into one node, which is how seams (one node, two verts) are recovered. Limitation: two
-distinct OBJ vertices at exactly the same position also become one node.
+:func:`read_obj` reads the `v`, `vt`, `f` and `usemtl` lines of a file in the file's own
+numbering; the two readers build on it:
+
+* :func:`load_obj`, a cloth mesh with texture coordinates. Positions become nodes and texture
+  coordinates become material coordinates (metres, after a scale), so a garment pattern laid out
+  in UV space imports with its rest shape. There is a vert per distinct (position, texture
+  coordinate) pair; verts at exactly equal positions are merged into one node, which is how seams
+  (one node, two verts) are recovered. Limitation: two distinct OBJ vertices at exactly the same
+  position also become one node. Verts and triangles are numbered as trimesh's OBJ import
+  numbered them (``trimesh.load(path, process=False)``, which this module used until the readers
+  were merged), so that a garment gets the same mesh, bit for bit (see :func:`garment_arrays`).
+* :func:`read_obj_mesh` and :func:`load_obj_sequence`, positions and triangles only, polygons split
+  into fans, in the file's vertex numbering, so that the frames of a sequence compare index by index.
+
+Writing (:func:`save_obj`, :func:`write_obj_sequence`) goes through trimesh's OBJ export and plain
+text; every file is written atomically.
 """
 
 from __future__ import annotations
 
+import glob
+import re
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import trimesh
 from trimesh.exchange.obj import export_obj
 from trimesh.visual import TextureVisuals
+from trimesh.visual.texture import unmerge_faces
 
-from ..mesh import Mesh, MeshError
-from .manifest import write_text_atomic
+from cloth.collision.meshobstacle import MeshObstacleError
+from cloth.core.mesh import Mesh, MeshError
+from cloth.io.manifest import write_text_atomic
 
 
 class ObjError(MeshError):
     """An OBJ file that cannot become a cloth mesh; the message names the file."""
+
+
+class ObjSequenceError(ObjError, MeshObstacleError):
+    """An OBJ file or sequence that cannot become a triangle-mesh obstacle: an ObjError (the message
+    names the file) and the MeshObstacleError the obstacle's builders catch."""
+
+
+# ---- the parser --------------------------------------------------------------------------------
+
+@dataclass
+class ObjFile:
+    """The mesh content of an OBJ file, in the file's own numbering (what :func:`read_obj` returns).
+
+    positions:      (V, 3) float64, the ``v`` lines in order (numbers after the third ignored).
+    texcoords:      (T, 2) float64, the ``vt`` lines in order (u, v); empty unless read with texcoords.
+    faces:          one tuple of corners per ``f`` line, in order; a corner is (v, vt, vn) as written:
+                    1-based, or negative (relative to the end of the lines read so far); vt and vn
+                    are None where absent, and always None unless read with texcoords.
+    face_positions: (F,) int64, the number of ``v`` lines before each ``f`` line.
+    face_material:  the ``usemtl`` name in force at each ``f`` line (None before the first).
+    """
+    positions: np.ndarray
+    texcoords: np.ndarray
+    faces: list[tuple[tuple[int, int | None, int | None], ...]]
+    face_positions: np.ndarray
+    face_material: list[str | None]
+
+
+def _corner(token: str, texcoords: bool) -> tuple[int, int | None, int | None]:
+    """(v, vt, vn) of a face token ``v``, ``v/vt``, ``v//vn`` or ``v/vt/vn``."""
+    parts = token.split("/")
+    if not texcoords:
+        return int(parts[0]), None, None
+    vt = int(parts[1]) if len(parts) > 1 and parts[1] else None
+    vn = int(parts[2]) if len(parts) > 2 and parts[2] else None
+    return int(parts[0]), vt, vn
+
+
+def read_obj(path, error: type[Exception] = ObjError, texcoords: bool = False,
+             encoding_errors: str = "strict") -> ObjFile:
+    """Parse an OBJ file's ``v``, ``f`` and (with `texcoords`) ``vt`` and ``usemtl`` lines; every
+    other line is ignored. A line that cannot be read raises `error` naming the file and the line;
+    so does a missing file. `encoding_errors`: how bytes that are not UTF-8 are decoded (``open``'s
+    ``errors``). Indices are not checked here (see the readers)."""
+    path = Path(path)
+    if not path.is_file():
+        raise error(f"{path}: no such file")
+    verts, uvs, faces, face_positions, face_material = [], [], [], [], []
+    material = None
+    line_no = 0
+    try:
+        with open(path, errors=encoding_errors) as fh:
+            for line in fh:
+                line_no += 1
+                if line.startswith("v "):
+                    parts = line.split()
+                    if len(parts) < 4:
+                        raise ValueError("a vertex needs three coordinates")
+                    verts.append((float(parts[1]), float(parts[2]), float(parts[3])))
+                elif line.startswith("f "):
+                    corners = tuple(_corner(tok, texcoords) for tok in line.split()[1:])
+                    if len(corners) < 3:
+                        raise ValueError("a face needs at least three vertices")
+                    faces.append(corners)
+                    face_positions.append(len(verts))
+                    face_material.append(material)
+                elif texcoords and line.startswith("vt "):
+                    parts = line.split()
+                    if len(parts) < 3:
+                        raise ValueError("a texture coordinate needs two numbers")
+                    uvs.append((float(parts[1]), float(parts[2])))
+                elif texcoords and line.startswith("usemtl "):
+                    material = line[6:].strip()
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise error(f"{path}: line {line_no}: cannot be read as OBJ ({exc})") from None
+    return ObjFile(positions=np.asarray(verts, dtype=np.float64).reshape(-1, 3),
+                   texcoords=np.asarray(uvs, dtype=np.float64).reshape(-1, 2), faces=faces,
+                   face_positions=np.asarray(face_positions, dtype=np.int64), face_material=face_material)
+
+
+# ---- cloth meshes ------------------------------------------------------------------------------
+
+# The two triangles, as corner numbers, that trimesh's OBJ import cuts a quad into (not the fan).
+QUAD_SPLIT = ((0, 1, 2), (2, 3, 0))
+
+
+def _fan(n: int) -> list[tuple[int, int, int]]:
+    """The triangles of a polygon of n corners as a fan from corner 0, as corner numbers."""
+    return [(0, j, j + 1) for j in range(1, n - 1)]
+
+
+def _corner_indices(triangles, k: int) -> np.ndarray:
+    """(T, 3) int64: index k (0: v, 1: vt, 2: vn) of every corner of the triangles, as trimesh uses it."""
+    return np.array([[_trimesh_index(c[k]) for c in t] for t in triangles], dtype=np.int64).reshape(-1, 3)
+
+
+def _trimesh_index(i: int) -> int:
+    """An OBJ index as trimesh's OBJ import uses it: 1-based to 0-based; 0 and negative ones as
+    written (numpy then counts a negative one from the end of the whole file's list)."""
+    return i - 1 if i > 0 else i
+
+
+def garment_arrays(obj: ObjFile, path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(vertex positions (n, 3), texture coordinates (n, 2), triangles (F, 3)) of a file read with
+    texcoords: a vertex per distinct (v, vt, vn) of the faces, numbered as trimesh's OBJ import
+    (process=False) numbers them, triangles in its order; ObjError with its messages for a file
+    whose faces refer to a missing vertex or lack texture coordinates.
+
+    That order: the faces are grouped by ``usemtl`` name and the groups taken last first; each
+    group's vertices are numbered by trimesh.visual.texture.unmerge_faces (one per distinct
+    (v, vt[, vn]) of its faces, by position index; vn counts only when every corner has one); its
+    polygons become triangles by fans, except quads: when every polygon of the group is a quad of
+    one layout, all first halves (corners 0 1 2), then all second halves (2 3 0); otherwise each
+    quad in place as (0 1 2), (2 3 0). OBJ indices as :func:`_trimesh_index`."""
+    groups: dict[str | None, list[int]] = {}
+    for i, m in enumerate(obj.face_material):
+        groups.setdefault(m, []).append(i)
+    xs, uvs, tris, n = [], [], [], 0
+    missing_texcoords = False
+    for face_ids in reversed(list(groups.values())):
+        polygons = [obj.faces[i] for i in face_ids]
+        corners = [c for p in polygons for c in p]
+        with_texcoords = all(c[1] is not None for c in corners)
+        with_normals = all(c[2] is not None for c in corners)
+        sizes = {len(p) for p in polygons}
+        one_layout = len(sizes) == 1 and (with_normals or all(c[2] is None for c in corners))
+        if one_layout and sizes == {4}:
+            triangles = [(p[a], p[b], p[c]) for a, b, c in QUAD_SPLIT for p in polygons]
+        else:
+            triangles = [(p[a], p[b], p[c]) for p in polygons
+                         for a, b, c in (QUAD_SPLIT if len(p) == 4 else _fan(len(p)))]
+        tri_v = _corner_indices(triangles, 0)
+        try:
+            if not with_texcoords:
+                obj.positions[tri_v]  # a face that refers to a missing vertex is said first
+                missing_texcoords = True
+                continue
+            attributes = [_corner_indices(triangles, 1)] + ([_corner_indices(triangles, 2)] if with_normals else [])
+            faces, mask_v, mask_vt, *_ = unmerge_faces(tri_v, *attributes)
+            xs.append(obj.positions[mask_v])
+        except IndexError as exc:
+            raise ObjError(f"{path}: cannot be read as OBJ ({type(exc).__name__}: {exc})") from None
+        try:
+            uvs.append(obj.texcoords[mask_vt])
+        except IndexError:  # a face refers to a vt line that is not there (or there are none)
+            missing_texcoords = True
+        tris.append(faces + n)
+        n += len(mask_v)
+    if missing_texcoords:
+        raise ObjError(f"{path}: has no texture coordinates (vt); material coordinates come from them")
+    return np.concatenate(xs), np.concatenate(uvs), np.concatenate(tris)
 
 
 def load_obj(path, uv_scale: float = 1.0, position_scale: float = 1.0) -> Mesh:
@@ -36,18 +203,12 @@ def load_obj(path, uv_scale: float = 1.0, position_scale: float = 1.0) -> Mesh:
         raise ObjError(f"{path}: no such file")
     if not (uv_scale > 0 and position_scale > 0):
         raise ObjError(f"{path}: uv_scale and position_scale must be > 0")
-    try:
-        tm = trimesh.load(path, file_type="obj", force="mesh", process=False)
-    except Exception as exc:  # trimesh raises many types on malformed input
-        raise ObjError(f"{path}: cannot be read as OBJ ({type(exc).__name__}: {exc})") from None
-    if len(tm.faces) == 0:
+    obj = read_obj(path, texcoords=True, encoding_errors="replace")  # a stray byte in a comment is no error
+    if not obj.faces:
         raise ObjError(f"{path}: has no faces")
-    uv = getattr(tm.visual, "uv", None)
-    if uv is None or len(uv) != len(tm.vertices):
-        raise ObjError(f"{path}: has no texture coordinates (vt); material coordinates come from them")
-    verts_x = np.asarray(tm.vertices, dtype=np.float64) * position_scale
-    vert_u = np.asarray(uv, dtype=np.float64) * uv_scale
-    faces = np.asarray(tm.faces, dtype=np.int64)
+    x, uv, faces = garment_arrays(obj, path)
+    verts_x = x * position_scale
+    vert_u = uv * uv_scale
     # one node per distinct position, numbered in order of first appearance
     _, first, inverse = np.unique(verts_x, axis=0, return_index=True, return_inverse=True)
     order = np.argsort(first)
@@ -82,3 +243,84 @@ def save_obj(path, mesh: Mesh) -> None:
     # no material library is written, so drop the references to one
     text = "\n".join(line for line in text.splitlines() if not line.startswith(("mtllib", "usemtl"))) + "\n"
     write_text_atomic(path, text)
+
+
+# ---- OBJ sequences (moving obstacles): positions and triangles only, the file's numbering ----
+
+def read_obj_mesh(path) -> tuple[np.ndarray, np.ndarray]:
+    """(positions (V, 3), triangles (F, 3)) of an OBJ file: `v` and `f` lines only (texture and
+    normal indices ignored, polygons split into fans, negative indices relative). The vertex
+    numbering is the file's, so that frames of a sequence compare index by index."""
+    obj = read_obj(path, error=ObjSequenceError)
+    tris = [tuple(p[k][0] if p[k][0] > 0 else n + 1 + p[k][0] for k in t)
+            for p, n in zip(obj.faces, obj.face_positions) for t in _fan(len(p))]
+    if not tris:
+        raise ObjSequenceError(f"{path}: has no faces")
+    x = obj.positions
+    f = np.asarray(tris, dtype=np.int64) - 1
+    if f.min() < 0 or f.max() >= x.shape[0]:
+        raise ObjSequenceError(f"{path}: a face refers to vertex "
+                               f"{int(f.max() + 1 if f.max() >= x.shape[0] else f.min() + 1)} of {x.shape[0]}")
+    return x, f
+
+
+def _natural_key(path: str):
+    return [int(tok) if tok.isdigit() else tok for tok in re.split(r"(\d+)", str(path))]
+
+
+def obj_sequence_paths(source) -> list[Path]:
+    """The files of an OBJ sequence: a glob pattern (e.g. 'walk/frame_*.obj'; sorted by name,
+    numbers by value), a directory (its *.obj files), one file, or an explicit list of paths."""
+    if isinstance(source, (list, tuple)):
+        if not source:
+            raise ObjSequenceError("obstacle OBJ sequence: the list of files is empty")
+        paths = [Path(p).expanduser() for p in source]
+    else:
+        s = str(Path(str(source)).expanduser())
+        if Path(s).is_dir():
+            paths = [Path(p) for p in sorted(glob.glob(str(Path(s) / "*.obj")), key=_natural_key)]
+        elif glob.has_magic(s):
+            paths = [Path(p) for p in sorted(glob.glob(s), key=_natural_key)]
+        else:
+            paths = [Path(s)]
+        if not paths:
+            raise ObjSequenceError(f"obstacle OBJ sequence {str(source)!r}: no file matches")
+    for p in paths:
+        if not p.is_file():
+            raise ObjSequenceError(f"obstacle OBJ sequence: {p}: no such file")
+    return paths
+
+
+def load_obj_sequence(source, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray, list[Path]]:
+    """Read an OBJ sequence of one topology: (vertices (K, V, 3) in metres = file units x scale,
+    faces (F, 3), paths). A file whose vertex count or faces differ from the first's is named."""
+    if not (np.isfinite(scale) and scale > 0):
+        raise ObjSequenceError(f"obstacle OBJ scale must be > 0, got {scale}")
+    paths = obj_sequence_paths(source)
+    x0, faces = read_obj_mesh(paths[0])
+    frames = [x0]
+    for p in paths[1:]:
+        x, f = read_obj_mesh(p)
+        if x.shape[0] != x0.shape[0]:
+            raise ObjSequenceError(f"{p}: has {x.shape[0]} vertices, {paths[0]} has {x0.shape[0]}: "
+                                   "an OBJ sequence needs one topology")
+        if f.shape != faces.shape or not np.array_equal(f, faces):
+            raise ObjSequenceError(f"{p}: its faces differ from those of {paths[0]}: an OBJ sequence needs one "
+                                   "topology")
+        frames.append(x)
+    return np.stack(frames) * float(scale), faces, paths
+
+
+def write_obj_sequence(directory, vertices_per_frame, faces, stem: str = "frame") -> list[Path]:
+    """Write keyframes (K, V, 3) as OBJ files directory/<stem>_0000.obj ... (atomically each)."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    faces = np.asarray(faces, dtype=np.int64)
+    face_text = "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in faces)
+    paths = []
+    for k, x in enumerate(np.asarray(vertices_per_frame, dtype=np.float64)):
+        text = "".join(f"v {a:.17g} {b:.17g} {c:.17g}\n" for a, b, c in x) + face_text
+        path = directory / f"{stem}_{k:04d}.obj"
+        write_text_atomic(path, text)
+        paths.append(path)
+    return paths

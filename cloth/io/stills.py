@@ -10,12 +10,13 @@ the wrong order; that is enough for a still, not for a measurement.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+
+from cloth.io.manifest import atomic_write
+from cloth.view.camera import Camera
 
 OBSTACLE_RGB = (0.72, 0.72, 0.72)  # the body and other obstacles: neutral grey
 FRUSTUM_RGB = (0.1, 0.1, 0.1)
@@ -52,7 +53,7 @@ def draw_view(ax, camera, triangles, face_rgb, *, extra=(), shade=True, frustum=
     [0, 1], plus `extra` [(triangles (T,3,3), rgb (3,)), ...] (obstacles), far to near. A triangle
     with a corner at or behind the near plane is left out. `frustum`: another Camera whose frustum
     edges are drawn (cut at this camera's near plane), with a marker at its position."""
-    from matplotlib.collections import LineCollection, PolyCollection
+    from matplotlib.collections import LineCollection, PolyCollection  # noqa: PLC0415 - import cost, see render_still
 
     tris = [np.asarray(triangles, float).reshape(-1, 3, 3)]
     cols = [np.asarray(face_rgb, float).reshape(-1, 3)]
@@ -77,7 +78,7 @@ def draw_view(ax, camera, triangles, face_rgb, *, extra=(), shade=True, frustum=
         ax.add_collection(PolyCollection(px[order], facecolors=rgb, edgecolors=rgb, linewidths=0.3))
     if frustum is not None:
         c = frustum.frustum_corners()
-        segs = [s for s in (_clip_segment(c[i], c[j], camera) for i, j in frustum._EDGES) if s is not None]
+        segs = [s for s in (_clip_segment(c[i], c[j], camera) for i, j in frustum.FRUSTUM_EDGES) if s is not None]
         if segs:
             p = camera.project(np.array(segs).reshape(-1, 3))[0].reshape(-1, 2, 2)
             ax.add_collection(LineCollection(p, colors=[FRUSTUM_RGB], linewidths=0.8))
@@ -98,8 +99,6 @@ def outside_camera(camera, points, *, distance_factor: float = 2.5, fov_y_deg: f
     """A third-person camera (z up) that sees the scene `points` (N,3) and `camera`'s position:
     it looks at the centre of their bounding box from behind the camera, above and to its side,
     far enough for the bounding sphere to fit the field of view."""
-    from ..view import Camera
-
     pts = np.vstack([np.asarray(points, float).reshape(-1, 3), np.asarray(camera.position, float)[None]])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     centre = (lo + hi) / 2
@@ -123,11 +122,11 @@ def outside_camera(camera, points, *, distance_factor: float = 2.5, fov_y_deg: f
 def render_still(path, camera, triangles, face_rgb, *, extra=(), title=None, dpi=100) -> Path:
     """One PNG: the camera's view (left) and an outside view with the frustum (right). The
     frustum is drawn out to the scene's far extent, not to the far plane. Written atomically."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    # matplotlib costs ~1.4 s to import (python -X importtime): paid only by runs that write stills
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: PLC0415 - import cost, above
+    from matplotlib.figure import Figure  # noqa: PLC0415 - import cost, above
 
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     pts = [np.asarray(triangles, float).reshape(-1, 3)] + [np.asarray(t, float).reshape(-1, 3) for t, _ in extra]
     pts = np.concatenate(pts)
     depth = camera.project(pts)[1] if len(pts) else np.array([camera.near])
@@ -144,12 +143,6 @@ def render_still(path, camera, triangles, face_rgb, *, extra=(), title=None, dpi
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    fd, tmp = tempfile.mkstemp(suffix=".png", dir=path.parent)
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=dpi)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    with atomic_write(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format="png")
     return path

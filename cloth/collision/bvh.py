@@ -1,0 +1,213 @@
+"""Broad phase of collision handling: a bounding-volume hierarchy of axis-aligned boxes, in numba.
+
+The tree is rebuilt from scratch at every query (a top-down median split on the boxes'
+centres), which costs O(F log F) and needs no refit bookkeeping when the remesher changes
+the faces between steps. Boxes are given by their corners `lo`, `hi` (F, 3); the caller
+inflates them by the contact thickness and, for continuous collision detection, makes them
+cover a face's positions at the start and at the end of the step (`face_boxes`).
+
+    pairs = self_overlaps(lo, hi)            # (P, 2), i < j, boxes of one set that overlap
+    pairs = cross_overlaps(lo, hi, lo2, hi2)  # (P, 2), (index in set 1, index in set 2)
+    tree = build_tree(lo, hi)                 # the tree itself, for other searches over it
+
+The closest-point search over the same tree is cloth.collision.nearest.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+LEAF_SIZE = 4  # boxes per leaf: below this, testing all pairs is cheaper than descending
+
+
+@njit(cache=True)
+def build_tree(lo, hi):
+    """Tree over the boxes: node arrays (box lo, box hi, left child, start, count) and the
+    permutation `order` of box indices; node k's boxes are order[start[k]:start[k] + count[k]];
+    an inner node's children are left[k] and left[k] + 1, stored after it (a refit can run over
+    the nodes in reverse order); leaves have left = -1."""
+    n = lo.shape[0]
+    cap = 2 * n + 1
+    nlo = np.empty((cap, 3))
+    nhi = np.empty((cap, 3))
+    left = -np.ones(cap, dtype=np.int64)
+    start = np.zeros(cap, dtype=np.int64)
+    count = np.zeros(cap, dtype=np.int64)
+    order = np.arange(n)
+    centre = 0.5 * (lo + hi)
+    stack = np.empty(cap, dtype=np.int64)
+    n_nodes = 1
+    start[0], count[0] = 0, n
+    top = 0
+    stack[0] = 0
+    while top >= 0:
+        k = stack[top]
+        top -= 1
+        s, c = start[k], count[k]
+        for d in range(3):
+            nlo[k, d] = np.inf
+            nhi[k, d] = -np.inf
+        for a in range(s, s + c):
+            i = order[a]
+            for d in range(3):
+                nlo[k, d] = min(nlo[k, d], lo[i, d])
+                nhi[k, d] = max(nhi[k, d], hi[i, d])
+        if c <= LEAF_SIZE:
+            continue
+        # split at the median of the centres along the axis where the centres spread most
+        axis = 0
+        best = -1.0
+        for d in range(3):
+            cmin, cmax = np.inf, -np.inf
+            for a in range(s, s + c):
+                v = centre[order[a], d]
+                cmin = min(cmin, v)
+                cmax = max(cmax, v)
+            if cmax - cmin > best:
+                best = cmax - cmin
+                axis = d
+        keys = np.empty(c)
+        for a in range(c):
+            keys[a] = centre[order[s + a], axis]
+        perm = np.argsort(keys, kind="mergesort")  # stable: the tree is deterministic
+        seg = order[s:s + c].copy()
+        for a in range(c):
+            order[s + a] = seg[perm[a]]
+        half = c // 2
+        L = n_nodes
+        n_nodes += 2
+        left[k] = L
+        start[L], count[L] = s, half
+        start[L + 1], count[L + 1] = s + half, c - half
+        top += 1
+        stack[top] = L
+        top += 1
+        stack[top] = L + 1
+    return nlo[:n_nodes], nhi[:n_nodes], left[:n_nodes], start[:n_nodes], count[:n_nodes], order
+
+
+@njit(cache=True, inline="always")
+def _overlap(alo, ahi, a, blo, bhi, b):
+    """Whether box a of (alo, ahi) and box b of (blo, bhi) overlap (scalar reads: no row views)."""
+    return (alo[a, 0] <= bhi[b, 0] and blo[b, 0] <= ahi[a, 0] and alo[a, 1] <= bhi[b, 1]
+            and blo[b, 1] <= ahi[a, 1] and alo[a, 2] <= bhi[b, 2] and blo[b, 2] <= ahi[a, 2])
+
+
+@njit(cache=True)
+def _push(out, n, i, j):
+    if n == out.shape[0]:
+        grown = np.empty((2 * out.shape[0], 2), dtype=np.int64)
+        grown[:n] = out[:n]
+        out = grown
+    out[n, 0] = i
+    out[n, 1] = j
+    return out
+
+
+@njit(cache=True)
+def _traverse(lo, hi, tree, lo2, hi2, tree2, same):
+    """All overlapping box pairs between two trees (or of one tree with itself if `same`)."""
+    alo, ahi, aleft, astart, acount, aorder = tree
+    blo, bhi, bleft, bstart, bcount, border = tree2
+    out = np.empty((max(16, 4 * lo.shape[0]), 2), dtype=np.int64)
+    n = 0
+    stack = np.empty((64 + 4 * (aleft.shape[0] + bleft.shape[0]), 2), dtype=np.int64)
+    top = 0
+    stack[0, 0], stack[0, 1] = 0, 0
+    while top >= 0:
+        a, b = stack[top, 0], stack[top, 1]
+        top -= 1
+        if not _overlap(alo, ahi, a, blo, bhi, b):
+            continue
+        if same and a == b:
+            if aleft[a] < 0:  # one leaf: all pairs inside it
+                s, c = astart[a], acount[a]
+                for p in range(s, s + c):
+                    for q in range(p + 1, s + c):
+                        i, j = aorder[p], aorder[q]
+                        if _overlap(lo, hi, i, lo, hi, j):
+                            out = _push(out, n, min(i, j), max(i, j))
+                            n += 1
+            else:
+                L = aleft[a]
+                for pair in ((L, L), (L + 1, L + 1), (L, L + 1)):
+                    top += 1
+                    if top == stack.shape[0]:
+                        grown = np.empty((2 * stack.shape[0], 2), dtype=np.int64)
+                        grown[:top] = stack[:top]
+                        stack = grown
+                    stack[top, 0], stack[top, 1] = pair[0], pair[1]
+            continue
+        a_leaf, b_leaf = aleft[a] < 0, bleft[b] < 0
+        if a_leaf and b_leaf:
+            for p in range(astart[a], astart[a] + acount[a]):
+                i = aorder[p]
+                for q in range(bstart[b], bstart[b] + bcount[b]):
+                    j = border[q]
+                    if _overlap(lo, hi, i, lo2, hi2, j):
+                        if same:
+                            out = _push(out, n, min(i, j), max(i, j))
+                        else:
+                            out = _push(out, n, i, j)
+                        n += 1
+            continue
+        # descend into the larger box (by its longest side); a leaf is never descended
+        size_a = max(ahi[a, 0] - alo[a, 0], max(ahi[a, 1] - alo[a, 1], ahi[a, 2] - alo[a, 2]))
+        size_b = max(bhi[b, 0] - blo[b, 0], max(bhi[b, 1] - blo[b, 1], bhi[b, 2] - blo[b, 2]))
+        split_a = b_leaf or (not a_leaf and size_a >= size_b)
+        for h in range(2):
+            top += 1
+            if top == stack.shape[0]:
+                grown = np.empty((2 * stack.shape[0], 2), dtype=np.int64)
+                grown[:top] = stack[:top]
+                stack = grown
+            if split_a:
+                stack[top, 0], stack[top, 1] = aleft[a] + h, b
+            else:
+                stack[top, 0], stack[top, 1] = a, bleft[b] + h
+    return out[:n]
+
+
+def _check_boxes(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    lo = np.ascontiguousarray(lo, dtype=np.float64)
+    hi = np.ascontiguousarray(hi, dtype=np.float64)
+    if lo.ndim != 2 or lo.shape[1] != 3 or lo.shape != hi.shape:
+        raise ValueError(f"boxes must be two (N, 3) arrays of equal shape, got {lo.shape} and {hi.shape}")
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        raise ValueError("boxes must be finite")
+    return lo, hi
+
+
+def self_overlaps(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Index pairs (i, j), i < j, of the boxes [lo_i, hi_i] that overlap (closed boxes), (P, 2),
+    sorted lexicographically (deterministic)."""
+    lo, hi = _check_boxes(lo, hi)
+    if lo.shape[0] < 2:
+        return np.empty((0, 2), dtype=np.int64)
+    tree = build_tree(lo, hi)
+    pairs = _traverse(lo, hi, tree, lo, hi, tree, True)
+    return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+
+
+def cross_overlaps(lo: np.ndarray, hi: np.ndarray, lo2: np.ndarray, hi2: np.ndarray) -> np.ndarray:
+    """Index pairs (i, j) of a box i of the first set overlapping a box j of the second, (P, 2),
+    sorted lexicographically."""
+    lo, hi = _check_boxes(lo, hi)
+    lo2, hi2 = _check_boxes(lo2, hi2)
+    if lo.shape[0] == 0 or lo2.shape[0] == 0:
+        return np.empty((0, 2), dtype=np.int64)
+    pairs = _traverse(lo, hi, build_tree(lo, hi), lo2, hi2, build_tree(lo2, hi2), False)
+    return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+
+
+def face_boxes(face_nodes: np.ndarray, x0: np.ndarray, x1: np.ndarray | None = None,
+               pad: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes of the triangles `face_nodes` (F, 3) at positions x0 (and x1: the box then covers
+    the linear motion from x0 to x1 over a step), inflated by `pad` on every side."""
+    corners = x0[face_nodes]
+    lo, hi = corners.min(axis=1), corners.max(axis=1)
+    if x1 is not None:
+        c1 = x1[face_nodes]
+        lo, hi = np.minimum(lo, c1.min(axis=1)), np.maximum(hi, c1.max(axis=1))
+    return lo - pad, hi + pad

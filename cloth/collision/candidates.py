@@ -1,0 +1,197 @@
+"""Candidate pairs of the self-collision pass (cloth.collision.selfcollision): the vertex-face and
+edge-edge pairs of a step that the response (cloth.collision.response) has to test.
+
+1. `swept_boxes`: unpadded boxes of the nodes, faces and edges over the step x0 -> x1;
+2. `overlapping_face_pairs`: face pairs whose padded boxes overlap (the bounding-volume hierarchy
+   of cloth.collision.bvh), or, with obstacle triangles appended, the cloth-obstacle pairs;
+3. `primitive_pairs`: the vertex-face and edge-edge pairs of those face pairs. Each node and each
+   edge is tested from one face only, its owner (`owner_faces`); pairs that share a node, pairs
+   none of whose nodes can move and pairs whose own boxes are farther apart than the pad are
+   dropped.
+
+    vf, ee = candidate_pairs(face_nodes, face_edges, edge_nodes, x0, x1, pad)  # the three in one call
+    # vf (K, 2) [node, face], ee (L, 2) [edge, edge], each sorted and unique
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from cloth.collision.bvh import cross_overlaps, self_overlaps
+
+
+@njit(cache=True)
+def _kept(i, a, b, c, inv_m, first_fixed, skip):
+    """Whether the pair of nodes i, a, b, c is worth testing: some node can move, and, for a
+    pair with an obstacle node (index >= first_fixed), no node is flagged in `skip` (cloth
+    nodes found inside an obstacle at the step's start: the node contact alone handles them)."""
+    if inv_m[i] == 0.0 and inv_m[a] == 0.0 and inv_m[b] == 0.0 and inv_m[c] == 0.0:
+        return False
+    if i >= first_fixed or a >= first_fixed or b >= first_fixed or c >= first_fixed:
+        if skip[i] or skip[a] or skip[b] or skip[c]:
+            return False
+    return True
+
+
+@njit(cache=True, inline="always")
+def _apart(alo, ahi, a, blo, bhi, b, pad):
+    """Box a of (alo, ahi) and box b of (blo, bhi) are farther apart than pad along some axis."""
+    for d in range(3):
+        if alo[a, d] > bhi[b, d] + pad or blo[b, d] > ahi[a, d] + pad:
+            return True
+    return False
+
+
+@njit(cache=True)
+def _candidates(face_pairs, face_nodes, face_edges, edge_nodes, n_faces, n_edges, node_lo, node_hi,
+                face_lo, face_hi, edge_lo, edge_hi, node_owner, edge_owner, pad, inv_m, first_fixed, skip):
+    """Vertex-face keys (node * F + face) and edge-edge keys (e_lo * E + e_hi) of the face
+    pairs, skipping pairs that share a node, pairs `_kept` rejects and pairs whose own swept
+    boxes are farther apart than pad (node, face and edge boxes over the step, unpadded).
+
+    Each node and each edge is taken from one face only, its owner (node_owner, edge_owner):
+    its box lies in its owner's, so a pair whose boxes are within pad comes from the pair of
+    owners, which the face pairs hold, and comes once."""
+    P = face_pairs.shape[0]
+    vf = np.empty(6 * P, dtype=np.int64)
+    ee = np.empty(9 * P, dtype=np.int64)
+    nv = 0
+    ne = 0
+    for k in range(P):
+        for side in range(2):
+            f = face_pairs[k, side]
+            g = face_pairs[k, 1 - side]
+            for a in range(3):
+                i = face_nodes[f, a]
+                if node_owner[i] != f:
+                    continue
+                if i == face_nodes[g, 0] or i == face_nodes[g, 1] or i == face_nodes[g, 2]:
+                    continue
+                if not _kept(i, face_nodes[g, 0], face_nodes[g, 1], face_nodes[g, 2], inv_m, first_fixed, skip):
+                    continue
+                if _apart(node_lo, node_hi, i, face_lo, face_hi, g, pad):
+                    continue
+                vf[nv] = i * n_faces + g
+                nv += 1
+        f, g = face_pairs[k, 0], face_pairs[k, 1]
+        for a in range(3):
+            e1 = face_edges[f, a]
+            if edge_owner[e1] != f:
+                continue
+            p, q = edge_nodes[e1, 0], edge_nodes[e1, 1]
+            for b in range(3):
+                e2 = face_edges[g, b]
+                if edge_owner[e2] != g:
+                    continue
+                P2, Q2 = edge_nodes[e2, 0], edge_nodes[e2, 1]
+                if p == P2 or p == Q2 or q == P2 or q == Q2:
+                    continue
+                if not _kept(p, q, P2, Q2, inv_m, first_fixed, skip):
+                    continue
+                if _apart(edge_lo, edge_hi, e1, edge_lo, edge_hi, e2, pad):
+                    continue
+                ee[ne] = min(e1, e2) * n_edges + max(e1, e2)
+                ne += 1
+    return vf[:nv], ee[:ne]
+
+
+@njit(cache=True)
+def _sorted_unique(keys):
+    """The distinct values of `keys`, sorted (np.unique without its Python overhead)."""
+    if keys.shape[0] == 0:
+        return keys
+    k = np.sort(keys)
+    out = np.empty_like(k)
+    out[0] = k[0]
+    n = 1
+    for j in range(1, k.shape[0]):
+        if k[j] != out[n - 1]:
+            out[n] = k[j]
+            n += 1
+    return out[:n]
+
+
+@njit(cache=True)
+def _box_kernel(face_nodes, edge_nodes, x0, x1):
+    N, F, E = x0.shape[0], face_nodes.shape[0], edge_nodes.shape[0]
+    node_lo, node_hi = np.empty((N, 3)), np.empty((N, 3))
+    face_lo, face_hi = np.empty((F, 3)), np.empty((F, 3))
+    edge_lo, edge_hi = np.empty((E, 3)), np.empty((E, 3))
+    for i in range(N):
+        for d in range(3):
+            node_lo[i, d] = min(x0[i, d], x1[i, d])
+            node_hi[i, d] = max(x0[i, d], x1[i, d])
+    for f in range(F):
+        a, b, c = face_nodes[f, 0], face_nodes[f, 1], face_nodes[f, 2]
+        for d in range(3):
+            face_lo[f, d] = min(node_lo[a, d], min(node_lo[b, d], node_lo[c, d]))
+            face_hi[f, d] = max(node_hi[a, d], max(node_hi[b, d], node_hi[c, d]))
+    for e in range(E):
+        p, q = edge_nodes[e, 0], edge_nodes[e, 1]
+        for d in range(3):
+            edge_lo[e, d] = min(node_lo[p, d], node_lo[q, d])
+            edge_hi[e, d] = max(node_hi[p, d], node_hi[q, d])
+    return node_lo, node_hi, face_lo, face_hi, edge_lo, edge_hi
+
+
+def swept_boxes(face_nodes, edge_nodes, x0, x1):
+    """Unpadded boxes over the step x0 -> x1 (x0 alone if x1 is None) of the nodes, faces and
+    edges: (node_lo, node_hi, face_lo, face_hi, edge_lo, edge_hi)."""
+    return _box_kernel(face_nodes, edge_nodes, x0, x0 if x1 is None else x1)
+
+
+def overlapping_face_pairs(face_lo, face_hi, pad, n_fixed_faces=0, self_pairs=True):
+    """Face pairs (P, 2) whose boxes, inflated by pad, overlap: all of them, or, with
+    `n_fixed_faces` obstacle triangles last, those between the cloth and the obstacles (and
+    within the cloth if `self_pairs`), never two obstacle faces."""
+    lo, hi = face_lo - pad, face_hi + pad
+    if not n_fixed_faces:
+        return self_overlaps(lo, hi)
+    Fc = lo.shape[0] - int(n_fixed_faces)
+    # cloth faces whose boxes meet the obstacles' overall box: the others cannot touch them
+    olo, ohi = lo[Fc:].min(axis=0), hi[Fc:].max(axis=0)
+    near = np.flatnonzero(np.all((lo[:Fc] <= ohi) & (hi[:Fc] >= olo), axis=1))
+    cross = cross_overlaps(lo[near], hi[near], lo[Fc:], hi[Fc:])
+    parts = [np.column_stack([near[cross[:, 0]], cross[:, 1] + Fc])]
+    if self_pairs:
+        parts.insert(0, self_overlaps(lo[:Fc], hi[:Fc]))
+    return np.ascontiguousarray(np.vstack(parts))
+
+
+def owner_faces(face_nodes, face_edges, n_nodes, n_edges):
+    """One face of each node and of each edge (-1 for a node in no face): see `_candidates`."""
+    owner = np.repeat(np.arange(face_nodes.shape[0], dtype=np.int64), 3)
+    node_owner = np.full(n_nodes, -1, dtype=np.int64)
+    node_owner[face_nodes.ravel()] = owner
+    edge_owner = np.full(n_edges, -1, dtype=np.int64)
+    edge_owner[face_edges.ravel()] = owner
+    return node_owner, edge_owner
+
+
+def primitive_pairs(fp, face_nodes, face_edges, edge_nodes, boxes, owners, pad, inv_m, first_fixed, skip):
+    """Vertex-face and edge-edge pairs (see candidate_pairs) of the face pairs fp, whose own boxes
+    (`swept_boxes`) are within pad."""
+    F, E = face_nodes.shape[0], edge_nodes.shape[0]
+    vf, ee = _candidates(fp, face_nodes, face_edges, edge_nodes, F, E, *boxes, *owners, pad, inv_m, first_fixed, skip)
+    vf, ee = _sorted_unique(vf), _sorted_unique(ee)
+    return (np.stack([vf // F, vf % F], axis=1), np.stack([ee // E, ee % E], axis=1))
+
+
+def candidate_pairs(face_nodes, face_edges, edge_nodes, x0, x1, pad, inv_m=None, n_fixed_faces=0,
+                    self_pairs=True, first_fixed=None, skip=None):
+    """Vertex-face (K, 2) [node, face] and edge-edge (L, 2) [edge, edge] pairs whose boxes
+    (covering x0 -> x1, or x0 alone if x1 is None, inflated by `pad`) overlap.
+
+    With `inv_m`, pairs none of whose nodes can move (inv_m = 0) are left out. The last
+    `n_fixed_faces` faces are obstacle triangles (nodes from `first_fixed` on): face pairs are
+    then taken between them and the other faces only, and among the other faces only if
+    `self_pairs`; `skip` (N,) flags nodes whose pairs with obstacle nodes are left out."""
+    N, E = x0.shape[0], edge_nodes.shape[0]
+    boxes = swept_boxes(face_nodes, edge_nodes, x0, x1)
+    fp = overlapping_face_pairs(boxes[2], boxes[3], pad, n_fixed_faces, self_pairs)
+    inv_m = np.ones(N) if inv_m is None else inv_m
+    first_fixed = N if first_fixed is None else int(first_fixed)
+    skip = np.zeros(N, dtype=np.bool_) if skip is None else skip
+    return primitive_pairs(fp, face_nodes, face_edges, edge_nodes, boxes, owner_faces(face_nodes, face_edges, N, E),
+                           pad, inv_m, first_fixed, skip)

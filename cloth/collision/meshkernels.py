@@ -1,0 +1,126 @@
+"""Numba kernels of the triangle-mesh obstacles (cloth.collision.meshobstacle.TriangleMeshObstacle):
+the refit of their box forest as the mesh moves, the signed distance of a point from its closest
+feature, and the query of every point (nearest triangle by cloth.collision.nearest, sign from the
+angle-weighted pseudo-normals, union of the closed components). The method is described in
+cloth.collision.meshobstacle's docstring.
+
+Arrays: x (V, 3) vertex positions (m); faces (F, 3) vertex indices; face_n (F, 3) unit face
+normals; vert_pn (V, 3) vertex pseudo-normals; face_edge_pn (F, 3, 3) pseudo-normals of each
+face's edges (a-b, b-c, c-a); the forest (nlo, nhi, left, start, count, order) as built by
+cloth.collision.bvh.build_tree, one tree per root, concatenated.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from cloth.collision.nearest import box_distance2, nearest_triangle
+
+
+@njit(cache=True)
+def refit_tree(x, faces, nlo, nhi, left, start, count, order):
+    """Refit the boxes of a forest of trees to the triangles at positions x (in place).
+
+    Children are stored after their parent (cloth.collision.bvh.build_tree), so one pass in
+    reverse order sees every child before its parent. Returns the summed box extents (growth measure)."""
+    total = 0.0
+    for k in range(nlo.shape[0] - 1, -1, -1):
+        for d in range(3):
+            nlo[k, d] = np.inf
+            nhi[k, d] = -np.inf
+        if left[k] < 0:
+            for a in range(start[k], start[k] + count[k]):
+                f = order[a]
+                for j in range(3):
+                    v = faces[f, j]
+                    for d in range(3):
+                        nlo[k, d] = min(nlo[k, d], x[v, d])
+                        nhi[k, d] = max(nhi[k, d], x[v, d])
+        else:
+            for c in range(left[k], left[k] + 2):
+                for d in range(3):
+                    nlo[k, d] = min(nlo[k, d], nlo[c, d])
+                    nhi[k, d] = max(nhi[k, d], nhi[c, d])
+        for d in range(3):
+            total += nhi[k, d] - nlo[k, d]
+    return total
+
+
+@njit(cache=True)
+def _signed(p, f, w0, w1, w2, d, x, faces, face_n, vert_pn, face_edge_pn, tiny, n_out):
+    """Signed distance of p whose closest point is (w0, w1, w2) on face f at distance d; writes
+    the outward normal into n_out. The sign is that of (p - c) . pseudo-normal of the feature."""
+    a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+    if w1 == 0.0 and w2 == 0.0:
+        pn = vert_pn[a]
+    elif w0 == 0.0 and w2 == 0.0:
+        pn = vert_pn[b]
+    elif w0 == 0.0 and w1 == 0.0:
+        pn = vert_pn[c]
+    elif w2 == 0.0:
+        pn = face_edge_pn[f, 0]  # edge a-b
+    elif w0 == 0.0:
+        pn = face_edge_pn[f, 1]  # edge b-c
+    elif w1 == 0.0:
+        pn = face_edge_pn[f, 2]  # edge c-a
+    else:
+        pn = face_n[f]
+    s = 0.0
+    r = np.empty(3)
+    for k in range(3):
+        r[k] = p[k] - (w0 * x[a, k] + w1 * x[b, k] + w2 * x[c, k])
+        s += r[k] * pn[k]
+    sign = 1.0 if s >= 0.0 else -1.0
+    if d > tiny:
+        for k in range(3):
+            n_out[k] = sign * r[k] / d
+    else:  # on the surface: the feature's pseudo-normal (the face's if it vanishes)
+        L = np.sqrt(pn[0] * pn[0] + pn[1] * pn[1] + pn[2] * pn[2])
+        for k in range(3):
+            n_out[k] = pn[k] / L if L > 0.0 else face_n[f, k]
+    return sign * d
+
+
+@njit(cache=True)
+def query_closest(points, x, faces, face_n, vert_pn, face_edge_pn, face_comp, comp_root, comp_closed,
+                  nlo, nhi, left, start, count, order, bound2, tiny, phi, normal, face, bary):
+    """Signed distance, outward normal, closest face and barycentric weights of every point.
+
+    Tree 0 (root 0) holds all faces; with several components, comp_root[c] is the root of the
+    tree of component c. The nearest triangle overall gives the distance and (for an outside
+    point) the answer; a closed component whose box holds the point is searched on its own,
+    and the smallest signed distance wins (the union of the components)."""
+    stack = np.empty(nlo.shape[0] + 1, dtype=np.int64)
+    n_c = np.empty(3)
+    C = comp_root.shape[0]
+    for i in range(points.shape[0]):
+        p = points[i]
+        d2, f, w0, w1, w2 = nearest_triangle(p, 0, x, faces, nlo, nhi, left, start, count, order, bound2, stack)
+        face[i] = f
+        if f < 0:
+            phi[i] = np.sqrt(bound2)
+            for k in range(3):
+                normal[i, k] = 0.0
+                bary[i, k] = 0.0
+            continue
+        phi[i] = _signed(p, f, w0, w1, w2, np.sqrt(d2), x, faces, face_n, vert_pn, face_edge_pn, tiny, normal[i])
+        bary[i, 0], bary[i, 1], bary[i, 2] = w0, w1, w2
+        if C < 2:
+            continue
+        own = face_comp[f]
+        for c in range(C):
+            r = comp_root[c]
+            if c == own or not comp_closed[c] or box_distance2(p, nlo[r], nhi[r]) > 0.0:
+                continue
+            e2, g, v0, v1, v2 = nearest_triangle(p, r, x, faces, nlo, nhi, left, start, count, order, bound2, stack)
+            if g < 0:
+                continue
+            value = _signed(p, g, v0, v1, v2, np.sqrt(e2), x, faces, face_n, vert_pn, face_edge_pn, tiny, n_c)
+            if value < phi[i]:
+                phi[i] = value
+                face[i] = g
+                bary[i, 0], bary[i, 1], bary[i, 2] = v0, v1, v2
+                for k in range(3):
+                    normal[i, k] = n_c[k]
+

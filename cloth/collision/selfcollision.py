@@ -1,0 +1,221 @@
+"""Cloth self-collision over one step: proximity repulsion, continuous collision detection and
+rigid impact zones (Bridson, Fedkiw and Anderson 2002; Provot 1997), on node positions.
+
+Given the positions x0 at the start of a step (assumed free of intersections) and the
+positions x1 the integrator proposes at its end, `resolve_self_collisions` changes x1 so that
+
+1. **proximity**: vertex-face and edge-edge pairs closer than the thickness at x1 are pushed
+   apart to the thickness on the side they were on at x0 (mass-weighted, with the primitives'
+   barycentric weights, so a pair that crossed during the step is pushed back), with
+   Coulomb friction on their relative tangential motion over the step;
+2. **continuous collision detection**: every vertex-face and edge-edge pair that touches
+   during the linear motion x0 -> x1 (roots of the coplanarity cubic, `cloth.collision.ccd`) is given a
+   correction that leaves it on its starting side by a small separation at the end of the
+   step; repeated in Gauss-Seidel passes until a pass finds nothing or the pass limit is hit;
+3. **rigid impact zones**: if collisions remain, the nodes of each colliding pair are merged
+   into zones (with the zones already found) and each zone moves rigidly with its own linear
+   and angular momentum over the step. A rigid motion of a collision-free configuration has no
+   internal collisions, and zones only grow, so this terminates: at worst with one zone that
+   holds every colliding node. A zone with pinned nodes (infinite mass) takes the rigid motion
+   that best fits their displacement (`pinned_fit`). What is left after `max_zone_passes` is
+   counted in the record (never aborts).
+
+The caller turns the change of x1 into a change of velocity (dv = dx1 / h). Pairs that share
+a node are never tested (adjacent elements touch by construction), nor pairs none of whose
+nodes can move (every node pinned: no response can change them).
+
+**Obstacles.** `resolve_collisions_with_obstacles` runs the same three stages between the cloth
+and triangle-mesh obstacles (cloth.collision.meshobstacle) moving linearly over the step from their
+start to their end positions: the obstacles' triangles are appended to the cloth's as fixed
+faces whose nodes are pinned (infinite mass, inv_m = 0), so every correction moves only the
+cloth, and face pairs are taken between the cloth and the obstacles (and within the cloth when
+asked), never between two obstacle faces. A rigid impact zone holding pinned nodes moves with
+the rigid motion that best fits their displacement (least squares, Kabsch): exact for a zone
+touching one rigidly moving part (a translating sphere, one skinned capsule), so such a zone
+has no collision left inside it and the zone argument above still terminates. A zone touching
+parts that move differently (two capsules at a bending joint) is fitted only approximately;
+what it leaves after the rounds is counted (`obstacle_collisions_left`).
+
+This module holds the parameters and the two drivers; the stages are in their own modules:
+
+* cloth.collision.candidates, the broad phase: a bounding-volume hierarchy over face boxes
+  (cloth.collision.bvh) gives the face pairs; each node and edge is then tested from one face
+  only (its owner), so each vertex-face and edge-edge pair comes once;
+* cloth.collision.response, stages 1 and 2: a slab test along the face normal or the edges'
+  cross product rejects most pairs before the exact distance or the CCD cubic
+  (cloth.collision.ccd.vf_separated, ee_separated);
+* cloth.collision.impactzones, stage 3: the zones (union-find), their rigid motion, `pinned_fit`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cloth.collision.candidates import overlapping_face_pairs, owner_faces, primitive_pairs, swept_boxes
+from cloth.collision.impactzones import merge_zones, rigid_motion
+from cloth.collision.response import ccd_pass, proximity_repulsion
+from cloth.core.records import OBSTACLE_RECORD, SELF_COLLISION_RECORD
+
+# CCD counts a touch when two primitives come within this fraction of the thickness: the
+# coplanarity roots are exact only up to round-off, and a zero-distance test would miss grazes.
+CCD_ETA_FRACTION = 1e-3
+# After a CCD correction the pair ends this fraction of the thickness apart on its starting
+# side: enough that round-off does not put it back into contact, small enough that the
+# correction does not start new collisions (the proximity stage of the next step restores the
+# full thickness).
+CCD_SEPARATION_FRACTION = 0.1
+
+
+@dataclass(frozen=True)
+class SelfCollisionParams:
+    thickness: float  # m, distance kept between cloth surfaces
+    friction: float = 0.3  # Coulomb coefficient, cloth against cloth
+    proximity_passes: int = 2  # Gauss-Seidel passes of the repulsion
+    ccd_passes: int = 3  # Gauss-Seidel CCD passes before rigid impact zones
+    max_zone_passes: int = 12  # impact-zone rounds before giving up (the record says what is left)
+
+    def __post_init__(self):
+        if not self.thickness > 0:
+            raise ValueError(f"self-collision thickness must be > 0, got {self.thickness}")
+        if self.friction < 0:
+            raise ValueError(f"self-collision friction must be >= 0, got {self.friction}")
+        for name in ("proximity_passes", "ccd_passes", "max_zone_passes"):
+            if int(getattr(self, name)) < 0:
+                raise ValueError(f"self-collision {name} must be >= 0, got {getattr(self, name)}")
+
+
+def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, pinned,
+                            params: SelfCollisionParams, *, n_fixed_faces: int = 0, first_fixed=None,
+                            self_pairs: bool = True, skip=None) -> dict:
+    """Make the step x0 -> x1 free of cloth self-collisions (modifies x1 in place).
+
+    Returns the record: proximity pairs, CCD collisions found in the first pass, CCD passes,
+    impact zones and their rounds, and the collisions left when every bound was reached.
+
+    Obstacles (see `resolve_collisions_with_obstacles`, which builds these arguments): the last
+    `n_fixed_faces` faces are obstacle triangles on the pinned nodes from `first_fixed` on;
+    pairs are taken between them and the cloth, and within the cloth only if `self_pairs`;
+    `skip` (N,) bool: cloth nodes left out of the pairs with obstacle nodes. The record then
+    counts the pairs with an obstacle node apart (OBSTACLE_RECORD); the self_ keys count the rest.
+    """
+    h = params.thickness
+    inv_m = np.where(pinned, 0.0, 1.0 / node_m)
+    N = x0.shape[0]
+    first_fixed = N if first_fixed is None else int(first_fixed)
+    skip = np.zeros(N, dtype=np.bool_) if skip is None else np.ascontiguousarray(skip, dtype=np.bool_)
+    stats = dict(SELF_COLLISION_RECORD)
+    if n_fixed_faces:
+        stats.update(OBSTACLE_RECORD)
+    if face_nodes.shape[0] < 2:
+        return stats
+
+    owners = owner_faces(face_nodes, face_edges, N, edge_nodes.shape[0])
+
+    def pairs(xa, xb, pad, fp=None):
+        boxes = swept_boxes(face_nodes, edge_nodes, xa, xb)
+        if fp is None:
+            fp = overlapping_face_pairs(boxes[2], boxes[3], pad, n_fixed_faces, self_pairs)
+        return primitive_pairs(fp, face_nodes, face_edges, edge_nodes, boxes, owners, pad, inv_m, first_fixed, skip)
+
+    def count(key_self, key_obstacle, hits, n):
+        n_obstacle = int(np.count_nonzero((hits[:n] >= first_fixed).any(axis=1))) if n_fixed_faces else 0
+        stats[key_self] = int(n) - n_obstacle
+        if n_fixed_faces:
+            stats[key_obstacle] = n_obstacle
+
+    eta = CCD_ETA_FRACTION * h
+    sep = CCD_SEPARATION_FRACTION * h
+    # 1. proximity at the proposed end positions. Its face pairs come from boxes over the whole
+    # step padded by h, so that the first CCD pass can reuse them: the proximity moves no
+    # coordinate by more than delta, its boxes over the step grow by at most delta, and face
+    # boxes whose gap is then within 2 eta had a gap within 2 (eta + delta) <= 2 h before.
+    fp = None
+    if params.proximity_passes > 0:
+        boxes = swept_boxes(face_nodes, edge_nodes, x0, x1)
+        fp = overlapping_face_pairs(boxes[2], boxes[3], h, n_fixed_faces, self_pairs)
+        vf, ee = pairs(x1, None, h, fp)
+        x_prox = x1.copy()
+        n_self, n_obstacle = proximity_repulsion(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, h, params.friction,
+                                                 int(params.proximity_passes), first_fixed)
+        stats["self_proximity"] = int(n_self)
+        if n_fixed_faces:
+            stats["obstacle_proximity"] = int(n_obstacle)
+        delta = float(np.max(np.abs(x1 - x_prox))) if N else 0.0
+        if not delta <= h - eta:
+            fp = None
+    # 2. CCD passes with corrections
+    vf, ee = pairs(x0, x1, eta, fp)
+    hits = np.empty((vf.shape[0] + ee.shape[0], 4), dtype=np.int64)
+    moved = np.zeros(N + 1, dtype=bool)  # first pass: every pair
+    for p in range(int(params.ccd_passes)):
+        n = ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, True, hits, moved)
+        moved[-1] = True  # later passes: only pairs with a node this pass moved
+        if p == 0:
+            count("self_ccd_hits", "obstacle_ccd_hits", hits, n)
+        if n == 0:
+            return stats
+        stats["self_ccd_passes"] = p + 1
+        vf, ee = pairs(x0, x1, eta)
+        hits = np.empty((vf.shape[0] + ee.shape[0], 4), dtype=np.int64)
+    # 3. rigid impact zones
+    parent = np.arange(N)
+    in_zone = np.zeros(N, dtype=bool)
+    for r in range(int(params.max_zone_passes) + 1):
+        n = ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, False, hits,
+                     np.zeros(N + 1, dtype=bool))  # every pair: zones moved rigidly
+        if n == 0:
+            break
+        if r == int(params.max_zone_passes):
+            count("self_collisions_left", "obstacle_collisions_left", hits, n)
+            break
+        stats["impact_zone_rounds"] = r + 1
+        zones = merge_zones(parent, in_zone, hits[:n])
+        stats["impact_zones"] = len(zones)
+        for zone in zones:
+            rigid_motion(x0, x1, node_m, pinned, zone)
+        vf, ee = pairs(x0, x1, eta)
+        hits = np.empty((vf.shape[0] + ee.shape[0], 4), dtype=np.int64)
+    return stats
+
+
+def resolve_collisions_with_obstacles(face_nodes, face_edges, edge_nodes, x0, x1, node_m, pinned,
+                                      params: SelfCollisionParams, obstacles, *, self_pairs: bool = True,
+                                      skip=None) -> dict:
+    """Make the step x0 -> x1 of the cloth free of collisions with triangle-mesh obstacles (and,
+    with `self_pairs`, with itself, in the same pass), modifying x1 in place; the obstacles
+    do not move.
+
+    obstacles: [(y0 (V, 3), y1 (V, 3), faces (G, 3), face_edges (G, 3), edge_nodes (E, 2)), ...],
+    each obstacle's vertex positions at the step's start and end (linear in between) and its
+    topology (cloth.collision.meshobstacle.TriangleMeshObstacle.collision_topology). skip (n,) bool:
+    cloth nodes to leave out of the cloth-obstacle pairs (e.g. found inside an obstacle at the
+    step's start, where keeping them on their starting side would hold them in). Returns the
+    record of `resolve_self_collisions` with OBSTACLE_RECORD.
+    """
+    if not len(obstacles) and not self_pairs:
+        return {**SELF_COLLISION_RECORD, **OBSTACLE_RECORD}
+    n, E = x0.shape[0], edge_nodes.shape[0]
+    fn, fe = [np.asarray(face_nodes, np.int64)], [np.asarray(face_edges, np.int64)]
+    en = [np.asarray(edge_nodes, np.int64)]
+    X0, X1 = [x0], [x1]
+    node_off, edge_off, n_fixed = n, E, 0
+    for y0, y1, faces, f_edges, e_nodes in obstacles:
+        fn.append(np.asarray(faces, np.int64) + node_off)
+        fe.append(np.asarray(f_edges, np.int64) + edge_off)
+        en.append(np.asarray(e_nodes, np.int64) + node_off)
+        X0.append(np.asarray(y0, np.float64))
+        X1.append(np.asarray(y1, np.float64))
+        node_off += X0[-1].shape[0]
+        edge_off += en[-1].shape[0]
+        n_fixed += fn[-1].shape[0]
+    extra = node_off - n
+    x0_all, x1_all = np.ascontiguousarray(np.vstack(X0)), np.ascontiguousarray(np.vstack(X1))
+    stats = resolve_self_collisions(
+        np.ascontiguousarray(np.vstack(fn)), np.ascontiguousarray(np.vstack(fe)), np.ascontiguousarray(np.vstack(en)),
+        x0_all, x1_all, np.concatenate([node_m, np.ones(extra)]), np.concatenate([pinned, np.ones(extra, dtype=bool)]),
+        params, n_fixed_faces=n_fixed, first_fixed=n, self_pairs=self_pairs,
+        skip=None if skip is None else np.concatenate([np.asarray(skip, dtype=bool), np.zeros(extra, dtype=bool)]))
+    x1[:] = x1_all[:n]
+    return stats

@@ -1,0 +1,32 @@
+"""Schemas of the per-frame record (one row of frames.parquet): the columns each stage fills, and
+their values in a frame where the stage did nothing. Each stage's code fills its own columns; the
+frame loop starts every record from these, so that every mode and scene writes the same columns.
+"""
+
+from __future__ import annotations
+
+# Phases timed in every frame record (seconds of wall time, column time_<phase>_s).
+PHASES = ("sizing", "remesh", "physics", "solve", "collisions", "io", "other")
+
+# The remesh stage (NaN or 0 in frames without a remesh, and in mode=nonadaptive).
+REMESH_RECORD = {"remeshed": 0, "remesh_splits": 0, "remesh_collapses": 0, "remesh_flips": 0,
+                 "remesh_nodes_pushed_out": 0, "remesh_max_depth_m": 0.0,
+                 "pop_energy_before_j": float("nan"), "pop_energy_after_j": float("nan"),
+                 "pop_iterations": 0, "remesh_ccd_hits": 0, "remesh_guard_rounds": 0, "remesh_frozen_nodes": 0}
+
+# The view-dependent sizing (NaN in the other modes).
+VIEW_RECORD = {"view_factor_min": float("nan"), "view_factor_mean": float("nan"), "view_factor_max": float("nan"),
+               "contact_floor_faces": 0}
+
+# One collision pass of a step (cloth.collision.selfcollision): cloth-cloth pairs (self_*) and,
+# with triangle-mesh obstacles in the same pass, cloth-obstacle pairs (obstacle_*).
+SELF_COLLISION_RECORD = {"self_proximity": 0, "self_ccd_hits": 0, "self_ccd_passes": 0, "impact_zones": 0,
+                         "impact_zone_rounds": 0, "self_collisions_left": 0}
+OBSTACLE_RECORD = {"obstacle_proximity": 0, "obstacle_ccd_hits": 0, "obstacle_collisions_left": 0}
+
+# The untangling after a remesh (cloth.collision.untangle).
+UNTANGLE_RECORD = {"intersections_found": 0, "untangle_iterations": 0, "intersections_left": 0,
+                   "intersection_depth_m": 0.0, "intersection_length_m": 0.0}
+
+# The frame's collision columns: zero in scenes without the effects.
+COLLISION_RECORD = {"self_velocity_clamped": 0, **SELF_COLLISION_RECORD, **OBSTACLE_RECORD, **UNTANGLE_RECORD}

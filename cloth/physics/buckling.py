@@ -1,0 +1,82 @@
+"""Coarse-scale buckling compensation (Koh, Narain and O'Brien 2015, section 3.5, eqs 9-11).
+
+Coarse faces cannot form the fine wrinkles that real cloth makes in place of in-plane
+compression, so heavily coarsened cloth resists compression too much and balloons. For the
+out-of-frustum faces, the compressive principal strains that the membrane sees are scaled down,
+
+    E_i = 1/2 (F_i^T F_i - I)                                  (eq 9, cloth.physics.membrane.green_strain)
+    lambda^_j = lambda_j if lambda_j >= 0, alpha_i lambda_j otherwise   (eq 10, :func:`filter_strain`)
+    alpha_i = ((A_max - A_i) / (A_max - A_min))^k              (eq 11, :func:`compression_factor`)
+
+with A the material-space face areas and A_max, A_min their extremes over the out-of-frustum
+faces: the bigger a face, the more compressible. The membrane kernel (cloth.physics.membrane) applies
+eq 10 inside its energy, gradient and Hessian, per face, from the alpha this module computes.
+This is a physical effect, independent of the view: mode=viewdep switches it on by default and
+mode=adaptive can use it too (it needs a camera to know which faces are out of the frustum).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+class BucklingError(ValueError):
+    """A buckling-compensation parameter that cannot work."""
+
+
+def compression_factor(area, k: float) -> np.ndarray:
+    """Eq 11, alpha_i = ((A_max - A_i) / (A_max - A_min))^k over the given (out-of-frustum) faces.
+
+    `area` (F,) material-space areas, k >= 1. The smallest face keeps its full compression
+    resistance (alpha = 1), the largest loses it (alpha = 0). Where all areas are equal there is
+    no scale to compensate and alpha = 1.
+    """
+    area = np.asarray(area, dtype=np.float64)
+    if not k >= 1:
+        raise BucklingError(f"buckling k must be >= 1, got {k}")
+    if area.size == 0:
+        return np.ones(0)
+    a_max, a_min = float(area.max()), float(area.min())
+    if a_max - a_min <= 1e-12 * a_max:
+        return np.ones_like(area)
+    return ((a_max - area) / (a_max - a_min)) ** float(k)
+
+
+def filter_strain(E, alpha) -> np.ndarray:
+    """Eq 10 on symmetric 2x2 Green strains E (F, 2, 2): compressive principal strains times alpha (F,).
+
+    E = Q diag(lambda_1, lambda_2) Q^T -> Q diag(lambda^_1, lambda^_2) Q^T with
+    lambda^ = lambda where lambda >= 0 and alpha lambda where lambda < 0.
+    """
+    E = np.asarray(E, dtype=np.float64)
+    if E.ndim == 2:  # one strain
+        return filter_strain(E[None], np.reshape(alpha, -1)[:1])[0]
+    alpha = np.broadcast_to(np.asarray(alpha, dtype=np.float64), E.shape[:1])
+    lam, Q = np.linalg.eigh(E)
+    lam = np.where(lam < 0, alpha[:, None] * lam, lam)
+    return np.einsum("fik,fk,fjk->fij", Q, lam, Q)
+
+
+@dataclass(frozen=True)
+class BucklingParams:
+    """Buckling compensation as a scene effect: alpha per out-of-frustum face, 1 elsewhere."""
+
+    k: float = 10.0  # eq 11 exponent (the paper's k = 10)
+    mode: str = "adaptive"  # adaptive: eq 11 | uniform: alpha = 0 on every out-of-frustum face (Fig. 6 middle)
+
+    def __post_init__(self):
+        if not self.k >= 1:
+            raise BucklingError(f"buckling.k must be >= 1, got {self.k}")
+        if self.mode not in ("adaptive", "uniform"):
+            raise BucklingError(f"buckling.mode must be 'adaptive' or 'uniform', got {self.mode!r}")
+
+
+def face_alpha(area: np.ndarray, out_of_frustum: np.ndarray, params: BucklingParams) -> np.ndarray:
+    """(F,) compression factor of every face: eq 11 over the out-of-frustum ones, 1 on the others."""
+    alpha = np.ones(area.shape[0])
+    out = np.asarray(out_of_frustum, dtype=bool)
+    if out.any():
+        alpha[out] = 0.0 if params.mode == "uniform" else compression_factor(area[out], params.k)
+    return alpha

@@ -1,0 +1,185 @@
+"""Force terms: one class per physical effect, each adding energy, forces and Jacobians.
+
+A step is assembled once from the list of terms the scene asks for (see
+:func:`cloth.simulation.build_force_terms`), so a term that is not listed is never called.
+
+Every term implements
+
+* ``families``: names of the element families whose node stencils it couples ("faces",
+  "hinges"; see :func:`element_families`), for the sparsity pattern; may be empty;
+* ``rebuild(mesh, pattern)``: per-topology and per-rest-state precomputation;
+* ``accumulate(mesh, t, acc)``: add its energy, force, stiffness ``K = -df/dx`` and velocity
+  Jacobian ``D = -df/dv`` to the accumulator ``acc`` (accumulates into ``acc``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from cloth.core.mesh import Mesh
+from cloth.physics.assembly import SparsityPattern, scatter_blocks, scatter_forces
+from cloth.physics.bending import bending_elements, hinge_weight
+from cloth.physics.membrane import membrane_elements
+
+
+@dataclass
+class ForceAccumulator:
+    """Per-step sums of all force terms (world space)."""
+
+    force: np.ndarray  # (n_nodes, 3) float64, N
+    K: np.ndarray  # (n_blocks, 3, 3) float64, N/m: stiffness -df/dx, positive semi-definite
+    D: np.ndarray  # (n_blocks, 3, 3) float64, N s/m: velocity Jacobian -df/dv, PSD
+    energy: dict = field(default_factory=dict)  # J, potential energy per term
+
+    @classmethod
+    def zeros(cls, n_nodes: int, pattern: SparsityPattern) -> ForceAccumulator:
+        return cls(np.zeros((n_nodes, 3)), pattern.zeros(), pattern.zeros(), {})
+
+
+class ForceTerm:
+    name = "term"
+
+    families: tuple[str, ...] = ()
+
+    def rebuild(self, mesh: Mesh, pattern: SparsityPattern) -> None:
+        pass
+
+    def accumulate(self, mesh: Mesh, t: float, acc: ForceAccumulator) -> None:
+        raise NotImplementedError
+
+
+class Membrane(ForceTerm):
+    """StVK membrane on the Green strain of each face (cloth.physics.membrane).
+
+    `alpha` (F,) holds each face's compression factor for buckling compensation (paper eq 10;
+    all ones, plain StVK, unless the buckling stage sets it after each rebuild).
+    """
+
+    name = "membrane"
+
+    def __init__(self, mu: float, lam: float, project: bool = True):
+        self.mu, self.lam, self.project = float(mu), float(lam), bool(project)
+
+    families = ("faces",)
+
+    def rebuild(self, mesh, pattern):
+        self.slots = pattern.slots["faces"]
+        F = mesh.n_faces
+        self.energy, self.grad, self.hess = np.zeros(F), np.zeros((F, 9)), np.empty((F, 9, 9))
+        self.alpha = np.ones(F)
+
+    def accumulate(self, mesh, t, acc):
+        membrane_elements(mesh.node_x, mesh.face_nodes, mesh.face_Dm_inv, mesh.face_area,
+                          self.mu, self.lam, self.project, self.energy, self.grad, self.hess, self.alpha)
+        scatter_forces(acc.force, mesh.face_nodes, self.grad, -1.0)
+        scatter_blocks(acc.K, self.slots, self.hess, 1.0)
+        acc.energy[self.name] = float(self.energy.sum())
+
+
+class Bending(ForceTerm):
+    """Discrete-shell dihedral-angle bending on interior edges (cloth.physics.bending)."""
+
+    name = "bending"
+
+    def __init__(self, k_bend: float, project: bool = True):
+        self.k_bend, self.project = float(k_bend), bool(project)
+
+    families = ("hinges",)
+
+    def rebuild(self, mesh, pattern):
+        self.stencil = mesh.edge_stencil()
+        self.slots = pattern.slots["hinges"]
+        idx = mesh.bending_edges
+        fa, fb = mesh.edge_faces[idx, 0], mesh.edge_faces[idx, 1]
+        self.weight = np.ascontiguousarray(
+            hinge_weight(mesh.edge_rest_length[idx], mesh.face_area[fa], mesh.face_area[fb], self.k_bend))
+        self.rest_theta = np.ascontiguousarray(mesh.edge_rest_theta[idx])
+        E = idx.size
+        self.energy, self.grad, self.hess = np.zeros(E), np.zeros((E, 12)), np.empty((E, 12, 12))
+
+    def accumulate(self, mesh, t, acc):
+        bending_elements(mesh.node_x, self.stencil, self.rest_theta, self.weight, self.project,
+                         self.energy, self.grad, self.hess)
+        scatter_forces(acc.force, self.stencil, self.grad, -1.0)
+        scatter_blocks(acc.K, self.slots, self.hess, 1.0)
+        acc.energy[self.name] = float(self.energy.sum())
+
+
+class Gravity(ForceTerm):
+    """Uniform gravity f = m g; potential energy -sum m g.x."""
+
+    name = "gravity"
+
+    def __init__(self, g):
+        self.g = np.asarray(g, dtype=np.float64)
+
+    def accumulate(self, mesh, t, acc):
+        acc.force += mesh.node_m[:, None] * self.g
+        acc.energy[self.name] = float(-np.sum(mesh.node_m * (mesh.node_x @ self.g)))
+
+
+@njit(cache=True)
+def drag_elements(node_x, node_v, face_nodes, wind, drag, out_force, out_jac):
+    """Normal air drag per face: f = c A ((w - v_mean).n) n, a third to each node.
+
+    A is the world area, n the unit world normal; the Jacobian -df_a/dv_b = c A/9 n n^T
+    (the dependence of A and n on positions is neglected, as is usual for drag).
+    """
+    for f in range(face_nodes.shape[0]):
+        i0, i1, i2 = face_nodes[f, 0], face_nodes[f, 1], face_nodes[f, 2]
+        e1 = node_x[i1] - node_x[i0]
+        e2 = node_x[i2] - node_x[i0]
+        n = np.cross(e1, e2)
+        ln = np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+        for a in range(9):
+            out_force[f, a] = 0.0
+            for b in range(9):
+                out_jac[f, a, b] = 0.0
+        if ln == 0.0:
+            continue
+        area = 0.5 * ln
+        n = n / ln
+        vrel = wind - (node_v[i0] + node_v[i1] + node_v[i2]) / 3.0
+        vn = vrel[0] * n[0] + vrel[1] * n[1] + vrel[2] * n[2]
+        for a in range(3):
+            for d in range(3):
+                out_force[f, 3 * a + d] = drag * area * vn * n[d] / 3.0
+                for b in range(3):
+                    for e in range(3):
+                        out_jac[f, 3 * a + d, 3 * b + e] = drag * area * n[d] * n[e] / 9.0
+
+
+class Wind(ForceTerm):
+    """Air drag against a wind velocity that may gust: w(t) = w0 (1 + g sin(2 pi f t))."""
+
+    name = "wind"
+
+    def __init__(self, velocity, drag: float, gust_amplitude: float = 0.0, gust_frequency: float = 0.0):
+        self.velocity = np.asarray(velocity, dtype=np.float64)  # m/s
+        self.drag = float(drag)  # kg/(m^2 s): normal force per area per unit normal speed
+        self.gust_amplitude, self.gust_frequency = float(gust_amplitude), float(gust_frequency)
+
+    families = ("faces",)
+
+    def rebuild(self, mesh, pattern):
+        self.slots = pattern.slots["faces"]
+        F = mesh.n_faces
+        self.f, self.jac = np.empty((F, 9)), np.empty((F, 9, 9))
+
+    def wind_at(self, t: float) -> np.ndarray:
+        return self.velocity * (1.0 + self.gust_amplitude * np.sin(2 * np.pi * self.gust_frequency * t))
+
+    def accumulate(self, mesh, t, acc):
+        drag_elements(mesh.node_x, mesh.node_v, mesh.face_nodes, self.wind_at(t), self.drag, self.f, self.jac)
+        scatter_forces(acc.force, mesh.face_nodes, self.f, 1.0)
+        scatter_blocks(acc.D, self.slots, self.jac, 1.0)
+
+
+def element_families(mesh: Mesh, terms: list[ForceTerm]) -> dict[str, np.ndarray]:
+    """Node stencils of the element families that `terms` couple, for the sparsity pattern."""
+    available = {"faces": lambda: mesh.face_nodes, "hinges": mesh.edge_stencil}
+    names = sorted({f for term in terms for f in term.families})
+    return {name: available[name]() for name in names}

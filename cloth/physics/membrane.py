@@ -1,0 +1,272 @@
+"""StVK membrane elasticity on the Green strain of each triangle (paper eq 9).
+
+For a face with world positions x0, x1, x2 and inverse rest matrix B = Dm^-1 (Dm's columns
+are the material edges u1 - u0, u2 - u0), the deformation gradient is
+
+    F = [x1 - x0, x2 - x0] B = sum_a x_a g_a^T      (3x2),
+    g_0 = -(B[0] + B[1]),  g_1 = B[0],  g_2 = B[1]  (rows of B),
+
+the Green strain E = 1/2 (F^T F - I) (2x2, :func:`green_strain`, filtered by the buckling
+compensation of a later stage), and the StVK energy
+
+    W = A (mu E:E + lam/2 tr(E)^2),     S = 2 mu E + lam tr(E) I  (second Piola-Kirchhoff),
+
+with A the material area and (mu, lam) the 2D Lamé parameters in N/m. Gradient and Hessian:
+
+    dW/dx_a       = A F S g_a
+    d2W/dx_a dx_b = A [ (g_a^T S g_b) I + mu (F g_b)(F g_a)^T + mu (g_a.g_b) F F^T + lam (F g_a)(F g_b)^T ].
+
+The last three terms are A (dE/dx)^T C (dE/dx), positive semi-definite; the first is a
+Kronecker product of the Gram matrix (g_a^T S g_b) with I, PSD whenever S is. So the Hessian
+can be indefinite only under compression (S with a negative eigenvalue), and only then is it
+eigen-decomposed and made positive semi-definite (:func:`project_psd`): negative eigenvalues are
+clamped to zero under mild compression, and replaced by their absolute values (Chen et al.,
+"Stabler Neo-Hookean Simulation", 2024) where E's smallest eigenvalue is below
+ABSOLUTE_STRAIN = -0.1 (a principal stretch below 0.89). A face compressed that far with
+clamped eigenvalues has almost no stiffness along its soft directions while its restoring force
+is large, and on light nodes (a fine mesh of light cloth, where m / h^2 is a thousandth of the
+stiffness) one linearised step is then a bare Newton step that overshoots by centimetres: a
+dense pile of folds (the crushed sheet at 48 cells, whose self-collision response compresses
+faces every step) reached Green strains of 3 to 8 and diverged at frame 27, and so did the
+solo dancer with self-collision at frame 18; with the threshold at -0.1 both run to the end.
+(The threshold was at StVK's softening point, -1/3, before.) Absolute values under mild
+compression too would add stiffness against ordinary buckling: a falling sheet over a sphere
+then keeps more of its small wrinkles and folds less at the rim (measured at frame 8 of the
+adaptive `sheet_on_sphere`: faces per m^2 at the rim 971 against 1,518 with the threshold),
+while its first 8 frames with the threshold are those of the softening-point rule exactly.
+
+Buckling compensation (paper eq 10, cloth.physics.buckling) gives each face a compression factor
+alpha in [0, 1]: the energy sees E^ = Q diag(g(l_1), g(l_2)) Q^T, with l_j the eigenvalues of
+E, q_j its eigenvectors and g(l) = l for l >= 0, alpha l for l < 0. The energy is then a
+spectral function of E, W = A psi(l_1, l_2) with psi = mu (g_1^2 + g_2^2) + lam/2 (g_1 + g_2)^2:
+
+    S = dpsi/dE = sum_j psi_j q_j q_j^T,      psi_j = g'_j (2 mu g_j + lam (g_1 + g_2)),
+    d2psi/dE2 [D, D'] = sum_jk psi_jk D~_jj D'~_kk + 2 c D~_12 D'~_12,
+    psi_jk = g'_j g'_k (2 mu delta_jk + lam),  c = (psi_1 - psi_2) / (l_1 - l_2),
+
+with D~ = Q^T D Q (the derivative of a spectral function, Lewis 1996); for alpha = 1 this is
+the StVK formula above. The gradient keeps the form A F S g_a. Faces with alpha = 1 or with no
+compressed direction take the StVK path unchanged.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+
+@njit(cache=True)
+def deformation_gradient(x0, x1, x2, Dm_inv):
+    """F = [x1 - x0, x2 - x0] Dm^-1, (3, 2)."""
+    F = np.empty((3, 2))
+    for i in range(3):
+        d1 = x1[i] - x0[i]
+        d2 = x2[i] - x0[i]
+        F[i, 0] = d1 * Dm_inv[0, 0] + d2 * Dm_inv[1, 0]
+        F[i, 1] = d1 * Dm_inv[0, 1] + d2 * Dm_inv[1, 1]
+    return F
+
+
+@njit(cache=True)
+def green_strain(F):
+    """Green strain E = 1/2 (F^T F - I) of a (3, 2) deformation gradient (paper eq 9), (2, 2)."""
+    E = np.empty((2, 2))
+    for a in range(2):
+        for b in range(2):
+            s = F[0, a] * F[0, b] + F[1, a] * F[1, b] + F[2, a] * F[2, b]
+            E[a, b] = 0.5 * (s - (1.0 if a == b else 0.0))
+    return E
+
+
+# Smallest Green strain (1/2 (stretch^2 - 1)) below which the projection takes absolute values
+# of negative eigenvalues instead of clamping them (see the module docstring).
+ABSOLUTE_STRAIN = -0.1
+
+
+@njit(cache=True)
+def _strongly_compressed(E00, E01, E11):
+    """True when the smallest eigenvalue of E is below ABSOLUTE_STRAIN."""
+    m = 0.5 * (E00 + E11)
+    r = np.sqrt(0.25 * (E00 - E11) * (E00 - E11) + E01 * E01)
+    return m - r < ABSOLUTE_STRAIN
+
+
+@njit(cache=True)
+def project_psd(H, absolute=False):
+    """Make the symmetric matrix H positive semi-definite in place: negative eigenvalues -> 0,
+    or -> |w| with `absolute` (absolute-eigenvalue filtering, Chen et al., "Stabler Neo-Hookean
+    Simulation", SIGGRAPH 2024)."""
+    w, V = np.linalg.eigh(H)
+    n = H.shape[0]
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for k in range(n):
+                if w[k] > 0.0:
+                    s += V[i, k] * w[k] * V[j, k]
+                elif absolute:
+                    s -= V[i, k] * w[k] * V[j, k]
+            H[i, j] = s
+
+
+@njit(cache=True)
+def _eig_sym2(a, b, c):
+    """Eigen-decomposition of [[a, b], [b, c]]: (l1 >= l2, q1 (2,), q2 (2,))."""
+    m = 0.5 * (a + c)
+    r = np.sqrt(0.25 * (a - c) * (a - c) + b * b)
+    l1, l2 = m + r, m - r
+    q1 = np.empty(2)
+    if r == 0.0:
+        q1[0], q1[1] = 1.0, 0.0
+    elif a >= c:  # the better-conditioned of the two equivalent formulas
+        q1[0], q1[1] = a - l2, b
+    else:
+        q1[0], q1[1] = b, c - l2
+    n = np.sqrt(q1[0] * q1[0] + q1[1] * q1[1])
+    q1[0] /= n
+    q1[1] /= n
+    q2 = np.empty(2)
+    q2[0], q2[1] = -q1[1], q1[0]
+    return l1, l2, q1, q2
+
+
+@njit(cache=True)
+def _filtered_element_into(F, E, Dm_inv, area, mu, lam, alpha, project, grad, hess):
+    """Membrane energy of one face under eq 10 (see the module docstring); as stvk_element_into."""
+    l1, l2, q1, q2 = _eig_sym2(E[0, 0], E[0, 1], E[1, 1])
+    d1 = 1.0 if l1 >= 0.0 else alpha
+    d2 = 1.0 if l2 >= 0.0 else alpha
+    g1, g2 = d1 * l1, d2 * l2
+    tr = g1 + g2
+    energy = area * (mu * (g1 * g1 + g2 * g2) + 0.5 * lam * tr * tr)
+    p1 = d1 * (2.0 * mu * g1 + lam * tr)
+    p2 = d2 * (2.0 * mu * g2 + lam * tr)
+    p11 = d1 * d1 * (2.0 * mu + lam)
+    p22 = d2 * d2 * (2.0 * mu + lam)
+    p12 = d1 * d2 * lam
+    if l1 - l2 > 1e-12 * (abs(l1) + abs(l2) + 1e-300):
+        cc = (p1 - p2) / (l1 - l2)
+    else:  # equal eigenvalues (same branch): the limit psi_11 - psi_12
+        cc = 2.0 * mu * d1 * d1
+    S00 = p1 * q1[0] * q1[0] + p2 * q2[0] * q2[0]
+    S01 = p1 * q1[0] * q1[1] + p2 * q2[0] * q2[1]
+    S11 = p1 * q1[1] * q1[1] + p2 * q2[1] * q2[1]
+    g = np.empty((3, 2))
+    g[1, 0], g[1, 1] = Dm_inv[0, 0], Dm_inv[0, 1]
+    g[2, 0], g[2, 1] = Dm_inv[1, 0], Dm_inv[1, 1]
+    g[0, 0], g[0, 1] = -g[1, 0] - g[2, 0], -g[1, 1] - g[2, 1]
+    # eigenbasis components: gh[a] = Q^T g_a, fh[i] = Q^T (row i of F)
+    gh = np.empty((3, 2))
+    fh = np.empty((3, 2))
+    for a in range(3):
+        gh[a, 0] = q1[0] * g[a, 0] + q1[1] * g[a, 1]
+        gh[a, 1] = q2[0] * g[a, 0] + q2[1] * g[a, 1]
+    for i in range(3):
+        fh[i, 0] = q1[0] * F[i, 0] + q1[1] * F[i, 1]
+        fh[i, 1] = q2[0] * F[i, 0] + q2[1] * F[i, 1]
+    # dE/dx_{a,i} in the eigenbasis, as (D~_11, D~_22, sqrt2 D~_12)
+    V = np.empty((9, 3))
+    r2 = np.sqrt(2.0)
+    for a in range(3):
+        for i in range(3):
+            V[3 * a + i, 0] = gh[a, 0] * fh[i, 0]
+            V[3 * a + i, 1] = gh[a, 1] * fh[i, 1]
+            V[3 * a + i, 2] = r2 * 0.5 * (gh[a, 0] * fh[i, 1] + gh[a, 1] * fh[i, 0])
+    Sg = np.empty((3, 2))
+    for a in range(3):
+        Sg[a, 0] = S00 * g[a, 0] + S01 * g[a, 1]
+        Sg[a, 1] = S01 * g[a, 0] + S11 * g[a, 1]
+        for i in range(3):
+            grad[3 * a + i] = area * (F[i, 0] * Sg[a, 0] + F[i, 1] * Sg[a, 1])
+    for r in range(9):
+        a = r // 3
+        i = r % 3
+        for c in range(9):
+            b = c // 3
+            j = c % 3
+            v, w = V[r], V[c]
+            h = (p11 * v[0] * w[0] + p12 * (v[0] * w[1] + v[1] * w[0]) + p22 * v[1] * w[1]
+                 + cc * v[2] * w[2])
+            if i == j:
+                h += g[a, 0] * Sg[b, 0] + g[a, 1] * Sg[b, 1]
+            hess[r, c] = area * h
+    if project and not (p1 >= 0.0 and p2 >= 0.0 and cc >= 0.0):
+        project_psd(hess, l2 < ABSOLUTE_STRAIN)
+    return energy
+
+
+@njit(cache=True)
+def stvk_element_into(x0, x1, x2, Dm_inv, area, mu, lam, project, grad, hess, alpha=1.0):
+    """StVK energy of one face; writes the gradient (9,) and Hessian (9, 9), returns the energy.
+
+    `alpha` < 1 filters the compressive principal strains (buckling compensation, eq 10).
+    """
+    F = deformation_gradient(x0, x1, x2, Dm_inv)
+    E = green_strain(F)
+    if alpha < 1.0 and (E[0, 0] + E[1, 1] < 0.0 or E[0, 0] * E[1, 1] - E[0, 1] * E[0, 1] < 0.0):
+        return _filtered_element_into(F, E, Dm_inv, area, mu, lam, alpha, project, grad, hess)
+    trE = E[0, 0] + E[1, 1]
+    energy = area * (mu * (E[0, 0] ** 2 + 2.0 * E[0, 1] ** 2 + E[1, 1] ** 2) + 0.5 * lam * trE * trE)
+    S00 = 2.0 * mu * E[0, 0] + lam * trE
+    S11 = 2.0 * mu * E[1, 1] + lam * trE
+    S01 = 2.0 * mu * E[0, 1]
+    g = np.empty((3, 2))
+    g[1, 0], g[1, 1] = Dm_inv[0, 0], Dm_inv[0, 1]
+    g[2, 0], g[2, 1] = Dm_inv[1, 0], Dm_inv[1, 1]
+    g[0, 0], g[0, 1] = -g[1, 0] - g[2, 0], -g[1, 1] - g[2, 1]
+    Fg = np.empty((3, 3))  # Fg[a] = F g_a
+    Sg = np.empty((3, 2))  # Sg[a] = S g_a
+    for a in range(3):
+        Sg[a, 0] = S00 * g[a, 0] + S01 * g[a, 1]
+        Sg[a, 1] = S01 * g[a, 0] + S11 * g[a, 1]
+        for i in range(3):
+            Fg[a, i] = F[i, 0] * g[a, 0] + F[i, 1] * g[a, 1]
+            grad[3 * a + i] = area * (F[i, 0] * Sg[a, 0] + F[i, 1] * Sg[a, 1])
+    FFt = F @ F.T
+    for a in range(3):
+        for b in range(3):
+            gSg = g[a, 0] * Sg[b, 0] + g[a, 1] * Sg[b, 1]
+            gg = g[a, 0] * g[b, 0] + g[a, 1] * g[b, 1]
+            for i in range(3):
+                for j in range(3):
+                    h = mu * Fg[b, i] * Fg[a, j] + mu * gg * FFt[i, j] + lam * Fg[a, i] * Fg[b, j]
+                    if i == j:
+                        h += gSg
+                    hess[3 * a + i, 3 * b + j] = area * h
+    # S is PSD iff its trace and determinant are >= 0; then so is the Hessian
+    if project and not (S00 + S11 >= 0.0 and S00 * S11 - S01 * S01 >= 0.0):
+        project_psd(hess, _strongly_compressed(E[0, 0], E[0, 1], E[1, 1]))
+    return energy
+
+
+@njit(cache=True)
+def stvk_element(x0, x1, x2, Dm_inv, area, mu, lam, project, alpha=1.0):
+    """(energy, gradient (9,), Hessian (9, 9)) of the StVK membrane energy of one face."""
+    grad = np.empty(9)
+    hess = np.empty((9, 9))
+    energy = stvk_element_into(x0, x1, x2, Dm_inv, area, mu, lam, project, grad, hess, alpha)
+    return energy, grad, hess
+
+
+@njit(cache=True, parallel=True)
+def membrane_elements(node_x, face_nodes, face_Dm_inv, face_area, mu, lam, project,
+                      out_energy, out_grad, out_hess, face_alpha):
+    """Energy (F,), gradient (F, 9) and Hessian (F, 9, 9) of every face (each writes its own slot).
+
+    `face_alpha` (F,) is each face's compression factor (1: plain StVK; cloth.physics.buckling).
+    """
+    for f in prange(face_nodes.shape[0]):
+        out_energy[f] = stvk_element_into(
+            node_x[face_nodes[f, 0]], node_x[face_nodes[f, 1]], node_x[face_nodes[f, 2]],
+            face_Dm_inv[f], face_area[f], mu, lam, project, out_grad[f], out_hess[f], face_alpha[f])
+
+
+@njit(cache=True)
+def face_green_strain(node_x, face_nodes, face_Dm_inv):
+    """Green strain of every face, (F, 2, 2)."""
+    out = np.empty((face_nodes.shape[0], 2, 2))
+    for f in range(face_nodes.shape[0]):
+        F = deformation_gradient(node_x[face_nodes[f, 0]], node_x[face_nodes[f, 1]],
+                                 node_x[face_nodes[f, 2]], face_Dm_inv[f])
+        out[f] = green_strain(F)
+    return out

@@ -1,0 +1,356 @@
+"""The physics sizing field of adaptive remeshing (Narain, Samii and O'Brien 2012, section 4).
+
+A sizing tensor M is a symmetric 2x2 metric in material space (1/m^2): an edge u is the right
+length when u^T M u = 1. One function per refinement criterion, each returning (F, 2, 2):
+
+* :func:`curvature_sizing`   bending of the surface (shape operator and normal derivative), 1/refine_angle^2
+* :func:`velocity_sizing`    variation of velocity across the face, 1/refine_velocity^2
+* :func:`compression_sizing` resolution needed to represent buckling under compression (refine_compression)
+* :func:`obstacle_sizing`    nearness of an obstacle along its normal
+
+:func:`combine_sizing` takes their tensor maximum (or sum), clamps eigenvalues to
+[size_max^-2, size_min^-2] and bounds anisotropy by aspect_min; :func:`face_to_vert_sizing`
+averages faces to verts by area. :func:`physics_face_sizing` is the whole view-independent
+field; the view-dependent mode scales its result (eq 2) and nothing else differs.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from cloth.core.mesh import Mesh
+from cloth.core.tensors import eig_apply
+from cloth.physics.membrane import face_green_strain
+
+
+@dataclass(frozen=True)
+class SizingParams:
+    refine_angle: float = 0.3  # rad: largest dihedral bend per edge
+    refine_velocity: float = 0.5  # (m/s)/(m/s) = 1: largest relative velocity change per edge
+    refine_compression: float = 0.005  # largest compression (1 - stretch) per edge left unresolved
+    size_min: float = 0.01  # m: shortest edge the field asks for
+    size_max: float = 0.2  # m: longest edge the field allows
+    aspect_min: float = 0.2  # smallest ratio of the sizing's short to long edge length
+    obstacle_distance: float = 0.01  # m: obstacles nearer than this refine the cloth (ARCSim: 10 x 1 mm)
+    combine: str = "max"  # "max" (tensor maximum, ARCSim's default) or "sum"
+
+    def __post_init__(self):
+        for key in ("refine_angle", "refine_velocity", "refine_compression", "size_min", "size_max",
+                    "aspect_min"):
+            if not getattr(self, key) > 0:
+                raise ValueError(f"{key} must be > 0, got {getattr(self, key)}")
+        if not self.size_min <= self.size_max:
+            raise ValueError(f"size_min ({self.size_min}) must be <= size_max ({self.size_max})")
+        if not self.aspect_min <= 1:
+            raise ValueError(f"aspect_min must be <= 1, got {self.aspect_min}")
+        if self.obstacle_distance < 0:
+            raise ValueError(f"obstacle_distance must be >= 0, got {self.obstacle_distance}")
+        if self.combine not in ("max", "sum"):
+            raise ValueError(f"combine must be 'max' or 'sum', got {self.combine!r}")
+
+
+# ---------------------------------------------------------------------------------------
+# small tensor helpers
+def _gradient_material(values: np.ndarray, face_nodes: np.ndarray, Dm_inv: np.ndarray) -> np.ndarray:
+    """Material-space gradient of a per-node field linear on each face: (F, d, 2) = [q1-q0, q2-q0] Dm^-1."""
+    q = values[face_nodes]  # (F, 3, d)
+    D = np.stack([q[:, 1] - q[:, 0], q[:, 2] - q[:, 0]], axis=2)  # (F, d, 2)
+    return D @ Dm_inv
+
+
+def _gram(A: np.ndarray) -> np.ndarray:
+    """A^T A for a stack of (d, 2) matrices."""
+    return np.einsum("fki,fkj->fij", A, A)
+
+
+def node_normals(mesh: Mesh) -> np.ndarray:
+    """(n_nodes, 3) area-weighted unit normals of the world surface."""
+    x = mesh.node_x[mesh.face_nodes]
+    n = np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0])  # 2 * area * unit normal
+    out = np.zeros((mesh.n_nodes, 3))
+    for k in range(3):
+        np.add.at(out, mesh.face_nodes[:, k], n)
+    ln = np.linalg.norm(out, axis=1, keepdims=True)
+    return out / np.where(ln > 0, ln, 1.0)
+
+
+def dihedral_angles(mesh: Mesh) -> np.ndarray:
+    """(n_edges,) unsigned angle between the normals of each interior edge's faces (0 on the boundary)."""
+    fn = mesh.world_face_normals()
+    ef = mesh.edge_faces
+    theta = np.zeros(mesh.n_edges)
+    inner = ef[:, 1] >= 0
+    c = np.einsum("ij,ij->i", fn[ef[inner, 0]], fn[ef[inner, 1]])
+    theta[inner] = np.arccos(np.clip(c, -1.0, 1.0))
+    return theta
+
+
+# ---------------------------------------------------------------------------------------
+# criteria
+def curvature_sizing(mesh: Mesh, refine_angle: float) -> np.ndarray:
+    """M_curv = max(S^T S, N^T N) / refine_angle^2.
+
+    S is the discrete shape operator of the face in material coordinates,
+    S = (1/A) sum_e (theta_e l_e / 2) t_e t_e^T over its edges (theta_e the dihedral angle,
+    l_e the rest length, t_e the in-plane unit normal of the edge), and N (3x2) the
+    material-space derivative of the node normals. An edge of length l across which the
+    surface turns by about l*|S| then has size l*|S|/refine_angle.
+    """
+    theta = dihedral_angles(mesh)
+    u = mesh.vert_u[mesh.face_verts]  # (F, 3, 2)
+    S = np.zeros((mesh.n_faces, 2, 2))
+    for k in range(3):
+        e = u[:, (k + 1) % 3] - u[:, k]
+        length = np.linalg.norm(e, axis=1)
+        t = np.column_stack([e[:, 1], -e[:, 0]]) / length[:, None]  # in-plane normal of side k
+        w = 0.5 * theta[mesh.face_edges[:, k]] * length / mesh.face_area
+        S += w[:, None, None] * t[:, :, None] * t[:, None, :]
+    N = _gradient_material(node_normals(mesh), mesh.face_nodes, mesh.face_Dm_inv)
+    return tensor_max(np.stack([_gram(S), _gram(N)])) / refine_angle**2
+
+
+def velocity_sizing(mesh: Mesh, refine_velocity: float) -> np.ndarray:
+    """M_vel = V^T V / refine_velocity^2, V (3x2) the material-space gradient of velocity (1/s).
+
+    Velocity gradients are made dimensionless as ARCSim does, per unit of the gradient in 1/s.
+    """
+    V = _gradient_material(mesh.node_v, mesh.face_nodes, mesh.face_Dm_inv)
+    return _gram(V) / refine_velocity**2
+
+
+def compression_sizing(mesh: Mesh, refine_compression: float, E: np.ndarray | None = None) -> np.ndarray:
+    """Resolution needed to represent buckling under compression (ARCSim's compression metric).
+
+    With e = F^T F - I = 2E (E the Green strain, eq 9), the normal-derivative metric
+    S2 = N^T N and c = refine_compression,
+
+        M_comp = pos(-e + sqrt(e^T e - 4 c^2 adj(S2))) / (2 c^2),
+
+    where sqrt acts on eigenvalues (keeping their sign) and pos keeps the non-negative ones.
+    For a flat face compressed along one direction (e = diag(-eps, 0), S2 = 0) it is
+    diag(eps / c^2, 0): edges of length c / sqrt(eps) along the compression, so that the
+    compression the mesh cannot show as buckles stays below c per edge; the curvature the mesh
+    already resolves (S2) lowers the demand. Stretched directions ask for nothing.
+    """
+    if E is None:
+        E = face_green_strain(mesh.node_x, mesh.face_nodes, mesh.face_Dm_inv)
+    e = 2.0 * E
+    N = _gradient_material(node_normals(mesh), mesh.face_nodes, mesh.face_Dm_inv)
+    S2 = _gram(N)
+    adj = np.empty_like(S2)
+    adj[:, 0, 0], adj[:, 1, 1] = S2[:, 1, 1], S2[:, 0, 0]
+    adj[:, 0, 1], adj[:, 1, 0] = -S2[:, 1, 0], -S2[:, 0, 1]
+    c2 = refine_compression**2
+    D = np.einsum("fki,fkj->fij", e, e) - 4.0 * c2 * adj
+    root = eig_apply(D, lambda w: np.sign(w) * np.sqrt(np.abs(w)))
+    return eig_apply(-e + root, lambda w: np.maximum(w, 0.0)) / (2.0 * c2)
+
+
+def obstacle_sizing(mesh: Mesh, phi: np.ndarray, normal: np.ndarray, distance: float) -> np.ndarray:
+    """M_obs: for each corner i of a face with an obstacle within `distance`, the height of the
+    face's nodes above the obstacle's tangent plane at node i, h_j = (x_j - x_i).n_i + phi_i, has
+    material gradient g; M_obs = mean over corners of g g^T / h_i^2. A face tilted towards a
+    near obstacle is refined so its nodes sample the gap.
+
+    `phi` (n_nodes,) distance of each node to the nearest obstacle surface, `normal` (n_nodes, 3)
+    its outward unit normal there.
+    """
+    F = mesh.n_faces
+    out = np.zeros((F, 2, 2))
+    near = phi < distance
+    if not np.any(near):
+        return out
+    fn = mesh.face_nodes
+    x = mesh.node_x[fn]  # (F, 3, 3)
+    for i in range(3):
+        ni = fn[:, i]
+        use = near[ni] & (phi[ni] > 0)
+        if not np.any(use):
+            continue
+        h = np.einsum("fjk,fk->fj", x - x[:, i:i + 1], normal[ni]) + phi[ni][:, None]  # (F, 3)
+        dh = np.stack([h[:, 1] - h[:, 0], h[:, 2] - h[:, 0]], axis=1)  # (F, 2)
+        g = np.einsum("fk,fkj->fj", dh, mesh.face_Dm_inv)
+        term = g[:, :, None] * g[:, None, :] / np.maximum(phi[ni], 1e-12)[:, None, None] ** 2
+        out[use] += term[use]
+    return out / 3.0
+
+
+# ---------------------------------------------------------------------------------------
+# tensor maximum: smallest enclosing disk of the tensors' disks
+@nb.njit(cache=True)
+def _encloses(cx, cy, r, dx, dy, dr):
+    return math.sqrt((cx - dx) ** 2 + (cy - dy) ** 2) + dr <= r * (1.0 + 1e-9) + 1e-12
+
+
+@nb.njit(cache=True)
+def _encloses_all(px, py, r, cx, cy, rr):
+    for k in range(cx.shape[0]):
+        if not _encloses(px, py, r, cx[k], cy[k], rr[k]):
+            return False
+    return True
+
+
+@nb.njit(cache=True)
+def _tensor_max_one(Ms, out):
+    """The smallest-trace symmetric M with M >= M_k for all k (Loewner order), M_k 2x2 symmetric.
+
+    Writing M = r I + [[c0, c1], [c1, -c0]], M >= M_k iff the disk (c, r) contains the disk
+    (c_k, r_k); the answer is the smallest disk enclosing all of them (candidates through one,
+    two or three tangent disks; K is small).
+    """
+    K = Ms.shape[0]
+    cx = np.empty(K)
+    cy = np.empty(K)
+    rr = np.empty(K)
+    for k in range(K):
+        cx[k] = 0.5 * (Ms[k, 0, 0] - Ms[k, 1, 1])
+        cy[k] = 0.5 * (Ms[k, 0, 1] + Ms[k, 1, 0])
+        rr[k] = 0.5 * (Ms[k, 0, 0] + Ms[k, 1, 1])
+    best_r = np.inf
+    bx = 0.0
+    by = 0.0
+    for i in range(K):  # one disk
+        if rr[i] < best_r and _encloses_all(cx[i], cy[i], rr[i], cx, cy, rr):
+            best_r, bx, by = rr[i], cx[i], cy[i]
+    for i in range(K):  # two disks tangent inside
+        for j in range(i + 1, K):
+            d = math.sqrt((cx[j] - cx[i]) ** 2 + (cy[j] - cy[i]) ** 2)
+            if d == 0.0:
+                continue
+            r = 0.5 * (rr[i] + d + rr[j])
+            t = (r - rr[i]) / d
+            px = cx[i] + t * (cx[j] - cx[i])
+            py = cy[i] + t * (cy[j] - cy[i])
+            if r >= best_r:
+                continue
+            if _encloses_all(px, py, r, cx, cy, rr):
+                best_r, bx, by = r, px, py
+    for i in range(K):  # three disks tangent inside: |c - c_k| = R - r_k
+        for j in range(i + 1, K):
+            for l in range(j + 1, K):
+                # 2 (c_k - c_i).c - 2 (r_k - r_i) R = |c_k|^2 - |c_i|^2 - r_k^2 + r_i^2, k = j, l
+                a11, a12 = 2 * (cx[j] - cx[i]), 2 * (cy[j] - cy[i])
+                a21, a22 = 2 * (cx[l] - cx[i]), 2 * (cy[l] - cy[i])
+                det = a11 * a22 - a12 * a21
+                if abs(det) < 1e-14 * (abs(a11 * a22) + abs(a12 * a21) + 1e-300):
+                    continue
+                b1 = cx[j] ** 2 + cy[j] ** 2 - cx[i] ** 2 - cy[i] ** 2 - rr[j] ** 2 + rr[i] ** 2
+                b2 = cx[l] ** 2 + cy[l] ** 2 - cx[i] ** 2 - cy[i] ** 2 - rr[l] ** 2 + rr[i] ** 2
+                g1, g2 = 2 * (rr[j] - rr[i]), 2 * (rr[l] - rr[i])
+                # c = P + Q R
+                Px = (b1 * a22 - a12 * b2) / det
+                Py = (a11 * b2 - b1 * a21) / det
+                Qx = (g1 * a22 - a12 * g2) / det
+                Qy = (a11 * g2 - g1 * a21) / det
+                # |P + Q R - c_i|^2 = (R - r_i)^2
+                ux, uy = Px - cx[i], Py - cy[i]
+                qa = Qx * Qx + Qy * Qy - 1.0
+                qb = 2.0 * (ux * Qx + uy * Qy) + 2.0 * rr[i]
+                qc = ux * ux + uy * uy - rr[i] ** 2
+                roots = np.empty(2)
+                nr = 0
+                if abs(qa) < 1e-14:
+                    if qb != 0.0:
+                        roots[0] = -qc / qb
+                        nr = 1
+                else:
+                    disc = qb * qb - 4 * qa * qc
+                    if disc < 0:
+                        continue
+                    sd = math.sqrt(disc)
+                    roots[0] = (-qb - sd) / (2 * qa)
+                    roots[1] = (-qb + sd) / (2 * qa)
+                    nr = 2
+                for m in range(nr):
+                    R = roots[m]
+                    if R < max(rr[i], rr[j], rr[l]) or R >= best_r:
+                        continue
+                    px, py = Px + Qx * R, Py + Qy * R
+                    if _encloses_all(px, py, R, cx, cy, rr):
+                        best_r, bx, by = R, px, py
+    out[0, 0] = best_r + bx
+    out[1, 1] = best_r - bx
+    out[0, 1] = by
+    out[1, 0] = by
+
+
+@nb.njit(cache=True)
+def _tensor_max_faces(Ms, out):
+    K, F = Ms.shape[0], Ms.shape[1]
+    buf = np.empty((K, 2, 2))
+    for f in range(F):
+        for k in range(K):
+            buf[k] = Ms[k, f]
+        _tensor_max_one(buf, out[f])
+
+
+def tensor_max(Ms: np.ndarray) -> np.ndarray:
+    """Tensor maximum over axis 0 of (K, F, 2, 2) symmetric tensors: (F, 2, 2).
+
+    The result M satisfies u^T M u >= u^T M_k u for every k and direction u, with the
+    smallest trace; it equals M_k when M_k dominates all others.
+    """
+    Ms = np.ascontiguousarray(Ms, dtype=np.float64)
+    out = np.empty(Ms.shape[1:])
+    _tensor_max_faces(Ms, out)
+    return out
+
+
+def clamp_sizing(M: np.ndarray, size_min: float, size_max: float, aspect_min: float) -> np.ndarray:
+    """Eigenvalues clamped to [size_max^-2, size_min^-2], then the smaller raised to at least
+    aspect_min^2 times the larger (edges at most 1/aspect_min times longer one way than the other)."""
+    def fn(w):
+        w = np.clip(w, 1.0 / size_max**2, 1.0 / size_min**2)
+        lo = aspect_min**2 * w.max(axis=1, keepdims=True)
+        return np.maximum(w, lo)
+    return eig_apply(0.5 * (M + np.swapaxes(M, 1, 2)), fn)
+
+
+def combine_sizing(Ms: list[np.ndarray], params: SizingParams) -> np.ndarray:
+    """Combine criteria (tensor max or sum), then clamp (:func:`clamp_sizing`)."""
+    stack = np.stack(Ms)
+    M = tensor_max(stack) if params.combine == "max" else stack.sum(axis=0)
+    return clamp_sizing(M, params.size_min, params.size_max, params.aspect_min)
+
+
+def physics_face_sizing(mesh: Mesh, params: SizingParams, obstacles=None) -> np.ndarray:
+    """The view-independent sizing field of ARCSim, per face (F, 2, 2) in 1/m^2.
+
+    `obstacles` is a cloth.collision.obstacles.ObstacleSet placed at the current time, or None.
+    """
+    Ms = [curvature_sizing(mesh, params.refine_angle),
+          velocity_sizing(mesh, params.refine_velocity),
+          compression_sizing(mesh, params.refine_compression)]
+    if obstacles is not None and params.obstacle_distance > 0:
+        phi, normal, _ = obstacles.query(mesh.node_x)
+        Ms.append(obstacle_sizing(mesh, phi, normal, params.obstacle_distance))
+    return combine_sizing(Ms, params)
+
+
+def face_to_vert_sizing(mesh: Mesh, face_M: np.ndarray) -> np.ndarray:
+    """Area-weighted average of the sizing of the faces around each vert: (n_verts, 2, 2)."""
+    w = mesh.face_area
+    out = np.zeros((mesh.n_verts, 2, 2))
+    total = np.zeros(mesh.n_verts)
+    for k in range(3):
+        np.add.at(out, mesh.face_verts[:, k], w[:, None, None] * face_M)
+        np.add.at(total, mesh.face_verts[:, k], w)
+    return out / total[:, None, None]
+
+
+def face_edge_sizes(mesh: Mesh, vert_M: np.ndarray) -> np.ndarray:
+    """(F, 3) edge size s of each face's sides (paper eq 1), side k from vert k to vert k+1.
+
+    s^2(i, j) = u_ij^T ((M_i + M_j) / 2) u_ij with u_ij the material edge; s > 1 is an invalid
+    edge that the remesher splits.
+    """
+    fv = mesh.face_verts
+    a = fv.reshape(-1)
+    b = np.roll(fv, -1, axis=1).reshape(-1)
+    d = mesh.vert_u[b] - mesh.vert_u[a]
+    M = 0.5 * (vert_M[a] + vert_M[b])
+    return np.sqrt(np.einsum("ei,eij,ej->e", d, M, d)).reshape(-1, 3)

@@ -1,0 +1,169 @@
+"""View-dependent sizing (Koh, Narain and O'Brien 2015, sections 3.1-3.3): view factors,
+screen-space clamp, silhouette resampling and the per-face quantities they need from a camera.
+
+One public function per equation of the paper, vectorised over faces:
+
+=====================================  =========================================================
+:func:`spatial_view_factor`            eq 3, spatially smoothed view factor nu~ from the distance d
+                                       of a face to the view frustum
+:func:`anticipated_view_factor`        eq 4, temporal smoothing and anticipation over [t, t + T]
+:func:`scale_sizing`                   eq 2, M~ = nu^2 M
+:func:`screen_space_clamp`             eqs 5-8, edges of visible faces no shorter than l_min pixels
+:func:`resample_silhouette`            section 3.3, view factors across silhouettes
+=====================================  =========================================================
+
+The camera itself is :class:`cloth.view.camera.Camera`; camera paths are in :mod:`cloth.view.paths`.
+The eigenvalue clamp of eqs 7-8 is :func:`cloth.core.tensors.eig_apply`, shared with the sizing.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cloth.core.tensors import eig_apply
+from cloth.view.camera import Camera, ViewError
+
+# Relative slack on eq 4's tau samples: taus built as k * frame_time may overshoot T = K *
+# frame_time by a rounding error (3 * 0.1 > 0.3 in floating point), which is not a bad input.
+TAU_ROUNDOFF = 1e-9
+
+
+# ---- the paper's equations -----------------------------------------------------------------
+
+def spatial_view_factor(d, front_facing, nu_front: float, nu_back: float, nu_out: float, margin: float) -> np.ndarray:
+    """Eq 3, the spatially smoothed view factor nu~_i of each face.
+
+    nu~_i = nu_fb                            if d_i = 0,
+            nu_fb - (d_i / m) (nu_fb - nu_out)  if 0 < d_i < m,
+            nu_out                           if d_i >= m,
+
+    with d_i >= 0 the world distance of face i to the view frustum, m = `margin` (metres) and
+    nu_fb = nu_front where `front_facing` else nu_back. Continuous in d for m > 0; m = 0 gives
+    the unsmoothed step.
+    """
+    d = np.asarray(d, dtype=np.float64)
+    if np.any(d < 0) or not np.all(np.isfinite(d)):
+        raise ViewError("spatial_view_factor: distances d must be finite and >= 0")
+    if margin < 0:
+        raise ViewError(f"spatial_view_factor: margin m must be >= 0 m, got {margin}")
+    nu_fb = np.where(np.asarray(front_facing, dtype=bool), float(nu_front), float(nu_back))
+    if margin == 0:
+        return np.where(d > 0, float(nu_out), nu_fb)
+    t = np.minimum(d / margin, 1.0)
+    return nu_fb - t * (nu_fb - float(nu_out))
+
+
+def anticipated_view_factor(nu_future, taus, T: float) -> np.ndarray:
+    """Eq 4, nu_i(t) = max over tau in [0, T] of w(tau) nu~_i(t + tau), with w(tau) = 1 - tau / T.
+
+    `nu_future` (K, F): eq 3 for each face held fixed, the camera at its prescribed pose at
+    t + taus[k]; `taus` (K,) with taus[0] = 0 and taus <= T (the maximum over [0, T] is taken
+    over these samples). Conservative: nu(t) >= nu~(t) (the tau = 0 term), so visible faces
+    keep nu_front; a face that becomes visible at t + tau has nu >= (1 - tau/T) nu_front already
+    at t, rising continuously to the jump. T = 0 turns anticipation off (nu = nu~(t)).
+    """
+    nu_future = np.atleast_2d(np.asarray(nu_future, dtype=np.float64))
+    taus = np.asarray(taus, dtype=np.float64).reshape(-1)
+    if taus.size != nu_future.shape[0]:
+        raise ViewError(f"anticipated_view_factor: {taus.size} taus for {nu_future.shape[0]} rows of nu_future")
+    slack = TAU_ROUNDOFF * max(float(T), 1.0)
+    if abs(taus[0]) > slack or np.any(taus < -slack) or np.any(taus > T + slack):
+        raise ViewError(f"anticipated_view_factor: taus must start at 0 and lie in [0, T = {T}], got {taus.tolist()}")
+    if T == 0:
+        return nu_future[0].copy()
+    w = np.clip(1.0 - taus / float(T), 0.0, 1.0)
+    return np.max(w[:, None] * nu_future, axis=0)
+
+
+def scale_sizing(M, nu) -> np.ndarray:
+    """Eq 2, M~_i = nu_i^2 M_i: target edge lengths grow by 1 / nu_i. M (F, 2, 2), nu (F,) (or a scalar)."""
+    nu = np.asarray(nu, dtype=np.float64)
+    return nu[..., None, None] ** 2 * np.asarray(M, dtype=np.float64)
+
+
+def screen_space_clamp(M, S, l_min: float) -> np.ndarray:
+    """Eqs 5-8: the smallest change to M so that no edge is shorter than `l_min` pixels on screen.
+
+    With S (F, 2, 2) the Jacobian of the map from material coordinates (m) to screen
+    coordinates (pixels) on each face, the screen-space sizing tensor is
+    S(M~) = S^-T M~ S^-1 = Q diag(lambda_1, lambda_2) Q^T (eqs 5-6); its eigenvalues are clamped,
+    lambda^_i = min(lambda_i, l_min^-2) (eq 7), M^ = Q diag(lambda^) Q^T (eq 8), and the result
+    M_vd = S^T M^ S. It never refines (M_vd <= M~ in the positive semi-definite order) and leaves
+    M~ unchanged where every edge it asks for is at least l_min pixels long. Faces whose S is
+    singular (seen edge-on) keep M~.
+    """
+    M = np.asarray(M, dtype=np.float64)
+    S = np.asarray(S, dtype=np.float64)
+    if not l_min > 0:
+        raise ViewError(f"screen_space_clamp: l_min must be > 0 pixels, got {l_min}")
+    det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
+    scale = np.einsum("fij,fij->f", S, S)
+    ok = np.abs(det) > 1e-12 * scale
+    out = M.copy()
+    if not ok.any():
+        return out
+    Si = np.linalg.inv(S[ok])
+    Ms = np.einsum("fki,fkl,flj->fij", Si, M[ok], Si)  # S^-T M S^-1
+    Ms = 0.5 * (Ms + np.transpose(Ms, (0, 2, 1)))
+    Mh = eig_apply(Ms, lambda lam: np.minimum(lam, float(l_min) ** -2))
+    Mvd = np.einsum("fki,fkl,flj->fij", S[ok], Mh, S[ok])  # S^T M^ S
+    out[ok] = 0.5 * (Mvd + np.transpose(Mvd, (0, 2, 1)))
+    return out
+
+
+def resample_silhouette(nu, visible, edge_faces, threshold: float) -> np.ndarray:
+    """Section 3.3: smooth view factors across silhouettes before the transfer to verts.
+
+    Across every edge (`edge_faces` (E, 2), -1 on boundary edges) whose two faces' view factors
+    differ by more than `threshold` and where exactly one face is `visible`, the non-visible face
+    takes the average of the two. Visible faces never change. A face with several such edges
+    takes the largest of its averages (the finest sizing asked for; independent of edge order).
+    """
+    nu = np.asarray(nu, dtype=np.float64)
+    visible = np.asarray(visible, dtype=bool)
+    ef = np.asarray(edge_faces, dtype=np.int64).reshape(-1, 2)
+    out = nu.copy()
+    inner = ef[(ef[:, 0] >= 0) & (ef[:, 1] >= 0)]
+    if inner.size == 0:
+        return out
+    a, b = inner[:, 0], inner[:, 1]
+    jump = (np.abs(nu[a] - nu[b]) > threshold) & (visible[a] != visible[b])
+    a, b = a[jump], b[jump]
+    hidden = np.where(visible[a], b, a)
+    np.maximum.at(out, hidden, 0.5 * (nu[a] + nu[b]))
+    return out
+
+
+# ---- per-face quantities of a mesh under a camera -------------------------------------------
+
+def face_view_data(camera: Camera, centroids: np.ndarray, normals: np.ndarray):
+    """(distance to the frustum (F,), front_facing (F,)) of faces with the given centroids and unit normals.
+
+    A face is front-facing when its normal points towards the camera; the cloth is thin, so
+    which side is "front" is the side the face normal (counter-clockwise in material space) is on.
+    """
+    d = camera.distance_to_frustum(centroids)
+    front = np.einsum("ij,ij->i", normals, camera.center - centroids) > 0.0
+    return d, front
+
+
+def material_to_screen_jacobian(camera: Camera, vert_u: np.ndarray, face_verts: np.ndarray,
+                                vert_x: np.ndarray) -> np.ndarray:
+    """(F, 2, 2) Jacobian S of the map material coordinates (m) -> pixels on each face.
+
+    From the three projected verts: S = [p1 - p0, p2 - p0] [u1 - u0, u2 - u0]^-1. Faces with a
+    vert behind the camera get NaN (they are not visible).
+    """
+    px, depth = camera.project(vert_x.reshape(-1, 3))
+    px = px.reshape(vert_x.shape[0], 2)
+    p = px[face_verts]
+    u = vert_u[face_verts]
+    Ds = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]], axis=-1)
+    Dm = np.stack([u[:, 1] - u[:, 0], u[:, 2] - u[:, 0]], axis=-1)
+    return Ds @ np.linalg.inv(Dm)
+
+
+def face_geometry(mesh):
+    """(centroids (F, 3), unit normals (F, 3)) of the faces in world space."""
+    x = mesh.node_x[mesh.face_nodes]
+    return x.mean(axis=1), mesh.world_face_normals()

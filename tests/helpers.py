@@ -1,0 +1,158 @@
+"""Helpers shared by the test modules (plain functions and constants; the fixtures built on them
+are in tests/conftest.py). A test module imports what it needs from here (`from helpers import
+...`: pytest puts tests/ on sys.path) and never from another test module.
+
+- configs: `compose_config` (conf/ with overrides), `config_choices` (the files of a group);
+- simulations: `build_sim` (from overrides), `simulation_in_mode` (a Python-built Scene in one
+  of the three modes), `mode_overrides`, `MODES`;
+- runs: `run_config` (a run folder from overrides), `read_frames`, `run_module` (python -m in a
+  new process);
+- checks: `after_every_step` (a check after each step of a simulation), `count_crossings`,
+  `material_edge_lengths`;
+- small scenes: `COTTON`, `two_sheets`.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from hydra import compose, initialize_config_dir
+from omegaconf import DictConfig
+
+from cloth.collision.untangle import find_intersections
+from cloth.core.material import Material
+from cloth.core.mesh import grid_mesh, merge_meshes
+from cloth.simulation import Simulation
+from experiments.build import build_buckling, build_camera, build_remesher, build_simulation
+from experiments.run import run_from_config
+
+ROOT = Path(__file__).resolve().parents[1]  # the repository
+CONF = str(ROOT / "conf")  # Hydra's config directory (an absolute path, as initialize_config_dir wants)
+
+# conf/material/cotton.yaml, for the scenes the tests build in Python (tests/test_physics.py,
+# tests/test_meshobstacle.py; other tests use variants of their own, e.g. without damping).
+COTTON = Material("cotton", density=0.12, youngs_modulus=2.0e3, poisson_ratio=0.3,
+                  bending_stiffness=5e-6, damping_mass=0.05, damping_stiffness=2e-3)
+
+# The three modes of the frame loop (conf/mode/); every physical check that applies runs in each.
+MODES = ("nonadaptive", "adaptive", "viewdep")
+# mode=viewdep needs a camera: by default the static camera above the +x half of sheet_on_sphere
+# (conf/camera/sheet_half.yaml), which the view-dependent tests use.
+VIEWDEP_CAMERA = "sheet_half"
+# What a test run writes besides its records and states: no Rerun recording, no progress bar.
+QUIET = ("output.rerun=false", "output.progress=false")
+
+
+# ---- configs -------------------------------------------------------------------------------
+
+def config_choices(group: str) -> list[str]:
+    """The options of a config group: the names of conf/<group>/*.yaml, sorted."""
+    return sorted(p.stem for p in (ROOT / "conf" / group).glob("*.yaml"))
+
+
+def compose_config(*overrides: str, return_hydra_config: bool = False) -> DictConfig:
+    """conf/config.yaml composed with `overrides` (Hydra's command-line syntax)."""
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        return compose(config_name="config", overrides=list(overrides), return_hydra_config=return_hydra_config)
+
+
+def mode_overrides(mode: str, camera: str = VIEWDEP_CAMERA) -> tuple[str, ...]:
+    """The overrides that select `mode`, with `camera` for mode=viewdep (which needs one)."""
+    return (f"mode={mode}", f"camera={camera}") if mode == "viewdep" else (f"mode={mode}",)
+
+
+# ---- simulations ---------------------------------------------------------------------------
+
+def build_sim(*overrides: str) -> Simulation:
+    """The Simulation of the config composed with `overrides` (experiments.build.build_simulation)."""
+    return build_simulation(compose_config(*overrides))[0]
+
+
+def simulation_in_mode(scene, mode: str, camera: str = VIEWDEP_CAMERA, **kwargs) -> Simulation:
+    """A Simulation of a Python-built `scene` in `mode`: conf/mode/<mode>.yaml's remesher and, for
+    mode=viewdep, conf/camera/<camera>.yaml as the scene's camera and the mode's buckling
+    compensation, set up as experiments.build does; `kwargs` go to Simulation (solver, ...).
+    mode=nonadaptive is `Simulation(scene, **kwargs)`."""
+    if mode == "nonadaptive":
+        return Simulation(scene, **kwargs)
+    cfg = compose_config(*mode_overrides(mode, camera))
+    path = build_camera(cfg) if mode == "viewdep" else None
+    if path is not None:
+        scene.camera = path
+    remesher = build_remesher(cfg.mode, {}, path, scene.frame_time)
+    return Simulation(scene, remesher=remesher, buckling=build_buckling(cfg.mode, path), **kwargs)
+
+
+def after_every_step(sim: Simulation, check, before=None) -> None:
+    """Make `sim` call `check(sim)` at the end of each of its steps (before the frame's record),
+    and `before(sim)`, if given, at the start of each."""
+    step = sim.step
+
+    def checked(timings, stats):
+        if before is not None:
+            before(sim)
+        step(timings, stats)
+        check(sim)
+
+    sim.step = checked
+
+
+def material_edge_lengths(mesh) -> np.ndarray:
+    """(3 F,) lengths in material space (m) of the faces' edges: every face's first edges, then
+    their second, then their third (edge k joins corners k and k + 1)."""
+    fv, u = mesh.face_verts, mesh.vert_u
+    return np.concatenate([np.linalg.norm(u[fv[:, (k + 1) % 3]] - u[fv[:, k]], axis=1) for k in range(3)])
+
+
+def count_crossings(mesh) -> int:
+    """Crossing face pairs of the cloth with itself (cloth.collision.untangle.find_intersections)."""
+    return len(find_intersections(mesh.face_nodes, mesh.node_x)[0])
+
+
+# ---- small scenes --------------------------------------------------------------------------
+
+def two_sheets(n=6, gap=0.02, size=0.3, shift=(0.013, 0.007), density=COTTON.density):
+    """A sheet of n x n cells, `size` m across, and a smaller one (0.8 x) `gap` m above it,
+    shifted by 0.03 m + `shift` off its corner (no edge of one above an edge of the other).
+    Returns (merged mesh with rest data, number of nodes of the lower sheet)."""
+    lower = grid_mesh(size, size, n, n, origin=(0.0, 0.0, 0.0))
+    upper = grid_mesh(size * 0.8, size * 0.8, n, n, origin=(0.03 + shift[0], 0.03 + shift[1], gap))
+    mesh = merge_meshes([lower, upper])
+    mesh.update_rest_data(density)
+    return mesh, lower.n_nodes
+
+
+# ---- runs ----------------------------------------------------------------------------------
+
+def run_config(out: Path, *overrides: str) -> dict:
+    """Run the config composed with `overrides` into the folder `out` (experiments.run); its summary."""
+    return run_from_config(compose_config(*overrides), out)
+
+
+def read_frames(run_dir: Path) -> pd.DataFrame:
+    """The per-frame records of a run folder (frames.parquet)."""
+    return pd.read_parquet(Path(run_dir) / "frames.parquet")
+
+
+def module_env(**extra: str) -> dict:
+    """This process's environment with the repository on PYTHONPATH and `extra` added: the
+    environment of `run_module`, or of a process started otherwise (e.g. with Popen)."""
+    return dict(os.environ, PYTHONPATH=str(ROOT), **extra)
+
+
+def run_module(*args: str, env: dict | None = None, timeout: float = 600) -> subprocess.CompletedProcess:
+    """`python -m <args>` in a new process in the repository (environment: `module_env`, with `env`
+    added; a value None removes that variable), its output captured as text."""
+    full_env = module_env()
+    for key, value in (env or {}).items():
+        if value is None:
+            full_env.pop(key, None)
+        else:
+            full_env[key] = value
+    return subprocess.run([sys.executable, "-m", *args], cwd=ROOT, env=full_env, capture_output=True, text=True,
+                          timeout=timeout)
