@@ -1,9 +1,13 @@
 """Run a simulation for N frames and write its records into a run folder (no Hydra here).
 
-A run folder holds ``frames.parquet`` (one row per frame, rewritten atomically after every
-frame so that a run that fails keeps the frames it finished), ``summary.json`` (written at the
+A run folder holds ``frames.parquet`` (one row per frame, written atomically when the run ends,
+also when it fails, so that it keeps the frames it finished), ``summary.json`` (written at the
 end, also when the run fails, with the failure message), the Rerun recording and optional OBJ
-frames. The caller writes the resolved config and the environment manifest. With
+frames. While the run goes on, each finished frame's record is appended to ``frames.jsonl`` (one
+JSON line, flushed: a constant cost per frame, whatever the run's length); a run killed outright
+keeps there every frame it finished, and loses at most the line it was writing
+(:func:`read_journal` skips it). The journal is removed once frames.parquet holds the frames.
+The caller writes the resolved config and the environment manifest. With
 `checkpoint_every` the run keeps its latest complete state in ``checkpoint/state.pkl`` (removed
 when it completes), from which experiments.resume continues a killed run; a completed run
 leaves ``final_state.npz`` (float64 positions) for experiments.replay (cloth.io.checkpoint).
@@ -21,7 +25,7 @@ from tqdm import tqdm
 
 from cloth.core.records import PHASES
 from cloth.io.checkpoint import FINAL_STATE_FILE, remove_checkpoint, save_checkpoint, save_final_state
-from cloth.io.manifest import write_json_atomic, write_parquet_atomic
+from cloth.io.manifest import write_json_atomic, write_parquet_atomic, write_text_atomic
 from cloth.io.obj import save_obj
 from cloth.io.recorder import Recorder
 from cloth.io.states import save_state
@@ -30,16 +34,51 @@ from cloth.simulation import Simulation, SimulationDiverged
 from cloth.view.factors import face_geometry, face_view_data, spatial_view_factor
 from cloth.view.viewdep import ViewParams
 
+JOURNAL_FILE = "frames.jsonl"  # the records of the frames finished so far, while a run goes on
+
+
+def _json_value(v):
+    """JSON for numpy scalars in a record (numbers stay numbers; NaN as JSON's NaN)."""
+    if isinstance(v, np.generic):
+        return v.item()
+    raise TypeError(f"record value {v!r} ({type(v).__name__}) is not JSON")
+
+
+def open_journal(path: Path, rows: list):
+    """The frames journal, started over with `rows` (the frames a resumed run already has) and
+    open for appending."""
+    text = "".join(json.dumps(r, default=_json_value) + "\n" for r in rows)
+    write_text_atomic(path, text)
+    return open(path, "a", encoding="utf-8")
+
+
+def append_journal(journal, row: dict) -> None:
+    """One frame's record as one line, flushed to the OS: what a kill cannot take back."""
+    journal.write(json.dumps(row, default=_json_value) + "\n")
+    journal.flush()
+
+
+def read_journal(path) -> pd.DataFrame:
+    """The records in a frames journal (a killed run's), without a last line cut off mid-write."""
+    rows = []
+    for line in Path(path).read_text(encoding="utf-8").splitlines():
+        try:
+            rows.append(json.loads(line))
+        except json.JSONDecodeError:  # the line a kill interrupted: only ever the last
+            break
+    return pd.DataFrame(rows)
+
 
 def summarize(frames: pd.DataFrame) -> dict:
     """Min/max/mean of faces, verts and time per frame, as in the paper's Table 1."""
     if frames.empty:
         return {"frames_completed": 0}
     out = {"frames_completed": int(len(frames))}
-    for col in ("faces", "verts", "nodes", "wall_s"):
+    for col in ("faces", "verts", "nodes", "sim_s", "wall_s"):
         out[f"{col}_min"] = float(frames[col].min())
         out[f"{col}_max"] = float(frames[col].max())
         out[f"{col}_mean"] = float(frames[col].mean())
+    out["sim_total_s"] = float(frames["sim_s"].sum())
     out["wall_total_s"] = float(frames["wall_s"].sum())
     for p in PHASES:
         out[f"time_{p}_total_s"] = float(frames[f"time_{p}_s"].sum())
@@ -48,7 +87,7 @@ def summarize(frames: pd.DataFrame) -> dict:
 
 
 # Per-frame columns that add up over the characters of a crowd (everything else is per character).
-CROWD_SUM_COLUMNS = ("faces", "verts", "nodes", "wall_s", "solver_iterations", "contacts", "faces_in_view",
+CROWD_SUM_COLUMNS = ("faces", "verts", "nodes", "sim_s", "wall_s", "solver_iterations", "contacts", "faces_in_view",
                      "faces_back_facing", "faces_out_of_frame", "faces_compensated", "kinetic_energy_j")
 
 
@@ -139,6 +178,7 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
     recorder = recorder or Recorder()
     rows: list[dict] = list(rows or [])  # continuing from a checkpoint: its records
     status, message, error = "interrupted", "", None
+    journal = open_journal(out_dir / JOURNAL_FILE, rows)
     scene = sim.scene
     obstacles = sim.obstacle_set.obstacles if sim.contact is not None else ()
     camera, colors = _view(sim)
@@ -161,7 +201,7 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
             if stills_every > 0 and sim.frame % stills_every == 0:
                 write_still(sim, out_dir / "stills" / f"frame_{sim.frame:05d}.png")
             rows.append(row)
-            write_parquet_atomic(out_dir / "frames.parquet", pd.DataFrame(rows))
+            append_journal(journal, row)
             io = time.perf_counter() - t0
             row["time_io_s"] = io
             row["wall_s"] += io
@@ -189,9 +229,11 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
     finally:
         if bar is not None:
             bar.close()
+        journal.close()
         frames = pd.DataFrame(rows)
         if rows:
             write_parquet_atomic(out_dir / "frames.parquet", frames)
+        (out_dir / JOURNAL_FILE).unlink(missing_ok=True)  # frames.parquet holds every frame now
         summary = {"status": status, "message": message, "scene": scene.name, "notes": list(scene.notes),
                    "stages": sim.stages.names(), "frames_requested": int(n_frames), **summarize(frames)}
         if rows:

@@ -22,8 +22,10 @@ Table 1 (:func:`table1`). One row per (scene, scale, mode, variant); the fine re
 manifest's ``timestamp_utc``, else the config's modification time) and the others are listed in
 the table's notes as superseded. Speed-up = mean time per frame of the ``adaptive`` run of the
 same scene and scale (its default variant when there are several) / this row's mean time per
-frame. Time per frame is the frame's ``wall_s`` (every phase, I/O included, as the paper's
-Time/Frame). The Markdown and LaTeX of the tables are made by experiments.tables.
+frame. Time per frame is the frame's simulation time ``sim_s`` (sizing, remesh, physics, solve,
+collisions: the paper's Time/Frame, cloth.core.records.SIM_PHASES; for runs recorded before that
+column, the sum of those phase columns); I/O is its own column (``io_mean_s``), never inside it.
+The Markdown and LaTeX of the tables are made by experiments.tables.
 """
 
 from __future__ import annotations
@@ -40,11 +42,12 @@ from pathlib import Path
 import pandas as pd
 import yaml
 
+from cloth.core.records import SIM_PHASES
 from cloth.io.manifest import write_parquet_atomic, write_text_atomic
 from experiments.tables import PAPER_SCENES, table1_markdown, write_table1
 from experiments.tables import PAPER_TABLE1 as PAPER_TABLE1  # re-exported: the paper's numbers, also found here
 
-REQUIRED_FRAME_COLUMNS = ("frame", "faces", "verts", "wall_s")  # what Table 1 and Fig. 8 are made of
+REQUIRED_FRAME_COLUMNS = ("frame", "faces", "verts", "sim_s")  # what Table 1 and Fig. 8 are made of
 RUN_MARKERS = ("config.yaml", "frames.parquet", "summary.json")
 MODES = ("nonadaptive", "adaptive", "viewdep")
 # Swept parameters: runs-table column -> dotted config key (present in mode viewdep / when set).
@@ -53,9 +56,10 @@ SWEPT = {"nu_out": "mode.view.nu_out", "margin": "mode.view.margin", "T": "mode.
 SWEPT_COLUMNS = ("nu_out", "margin", "T", "anticipation", "buckling_k", "buckling_mode")
 ACCURACY_KEYS = ("error_px_mean", "error_px_max", "silhouette_px_mean", "surface_px_mean", "iou_mean",
                  "offscreen_distance_m_mean")
-STAT_COLUMNS = {"faces": "faces", "verts": "verts", "wall_s": "time"}  # frames column -> Table 1 name
+STAT_COLUMNS = {"faces": "faces", "verts": "verts", "sim_s": "time"}  # frames column -> Table 1 name
 TABLE1_COLUMNS = ("scene", "scale", "mode", "variant", "frames", "faces_min", "faces_max", "faces_mean",
-                  "verts_min", "verts_max", "verts_mean", "time_min_s", "time_max_s", "time_mean_s", "speedup",
+                  "verts_min", "verts_max", "verts_mean", "time_min_s", "time_max_s", "time_mean_s", "io_mean_s",
+                  "speedup",
                   "baseline", "run")
 
 
@@ -212,6 +216,25 @@ def _float(v) -> float:
         return math.nan
 
 
+def effective_view_setting(cfg: dict, key: str):
+    """The value a run used for the view setting `key` ('mode.view.<name>'): the scene's own
+    (scene.view.<name>, which experiments.build lets win over the mode's), else the mode's."""
+    scene_value = _get(cfg, "scene.view." + key.rsplit(".", 1)[-1])
+    return scene_value if scene_value is not None else _get(cfg, key)
+
+
+def with_sim_seconds(frames: pd.DataFrame) -> pd.DataFrame:
+    """`frames` with its sim_s column: as recorded, or for runs recorded before it, the sum of the
+    simulation phases' columns (cloth.core.records.SIM_PHASES). Without either, unchanged (the
+    caller names the missing column)."""
+    if "sim_s" in frames.columns:
+        return frames
+    phases = [f"time_{p}_s" for p in SIM_PHASES]
+    if not all(c in frames.columns for c in phases):
+        return frames
+    return frames.assign(sim_s=frames[phases].sum(axis=1))
+
+
 def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
     """One run folder: (row of the runs table, frames, accuracy frames or None, notes about parts
     left out). Raises _Bad with the reason when the folder cannot be used.
@@ -219,7 +242,8 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
     Row: path, scene, mode, scale, study, variant, reference, seed, timestamp, the swept
     parameters (nu_out, margin, T, anticipation, buckling_k, buckling_mode; NaN/'' where the mode
     has none), frame_time_s, camera_cuts_s, status, frames, frames_requested, characters,
-    faces/verts/time min/max/mean (time_*_s from wall_s), time_total_s, time_<phase>_mean_s,
+    faces/verts/time min/max/mean (time_*_s from sim_s), time_total_s, io_mean_s and wall_mean_s
+    (I/O and the whole frame, beside the simulation time), time_<phase>_mean_s,
     and accuracy.json's ACCURACY_KEYS plus accuracy_frames (NaN without accuracy).
     """
     path = Path(path)
@@ -232,7 +256,7 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
     if status != "completed":
         msg = summary.get("message") or ""
         raise _Bad(f"status {status!r}, not 'completed'" + (f" ({msg})" if msg else ""))
-    frames = _read_parquet(path / "frames.parquet")
+    frames = with_sim_seconds(_read_parquet(path / "frames.parquet"))
     missing = [c for c in REQUIRED_FRAME_COLUMNS if c not in frames.columns]
     if missing:
         raise _Bad(f"frames.parquet lacks column(s) {', '.join(missing)}")
@@ -251,7 +275,7 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
            "study": _text(cfg.get("study")), "variant": _text(cfg.get("variant")),
            "reference": bool(cfg.get("reference") or False), "seed": cfg.get("seed"), "timestamp": _timestamp(path)}
     for col, key in SWEPT.items():
-        v = _get(cfg, key)
+        v = effective_view_setting(cfg, key)
         row[col] = (math.nan if v is None else bool(v)) if col == "anticipation" else _float(v)
     row["anticipation"] = row["anticipation"] if mode == "viewdep" else math.nan
     row["buckling_k"] = _float(buckling.get("k")) if isinstance(buckling, dict) else math.nan
@@ -265,7 +289,9 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
         row[f"{name}_min{unit}"] = float(frames[col].min())
         row[f"{name}_max{unit}"] = float(frames[col].max())
         row[f"{name}_mean{unit}"] = float(frames[col].mean())
-    row["time_total_s"] = float(frames["wall_s"].sum())
+    row["time_total_s"] = float(frames["sim_s"].sum())
+    row["io_mean_s"] = float(frames["time_io_s"].mean()) if "time_io_s" in frames.columns else math.nan
+    row["wall_mean_s"] = float(frames["wall_s"].mean()) if "wall_s" in frames.columns else math.nan
     for c in frames.columns:
         if c.startswith("time_") and c.endswith("_s"):
             row[f"{c[:-2]}_mean_s"] = float(frames[c].mean())
@@ -404,7 +430,7 @@ def table1(runs: pd.DataFrame) -> pd.DataFrame:
         if base is None:
             notes.append(f"{r.run}: no unique adaptive run of {r.scene} ({r.scale or 'no scale'}): speed-up left out")
         rows.append({"scene": r.scene, "scale": r.scale, "mode": r.mode, "variant": r.variant, "frames": r.frames,
-                     **{c: getattr(r, c) for c in TABLE1_COLUMNS[5:14]},
+                     **{c: getattr(r, c) for c in TABLE1_COLUMNS[5:15]},
                      "speedup": (base["time_mean_s"] / r.time_mean_s) if base is not None else math.nan,
                      "baseline": base["run"] if base is not None else "", "run": r.run})
     out = _order(pd.DataFrame(rows, columns=list(TABLE1_COLUMNS)))

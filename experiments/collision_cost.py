@@ -42,9 +42,9 @@ def run(overrides: list, frames: int, warmup: int = 1) -> dict:
         error = str(exc)
     df = pd.DataFrame(rows).iloc[warmup:]
     return {"frames_run": len(rows), "error": error, "faces_mean": float(df.faces.mean()),
-            "s_per_frame": float(df.wall_s.mean()),
+            "s_per_frame": float(df.sim_s.mean()),
             "collision_s_per_frame": float(df.time_collisions_s.mean()),
-            "collision_share": float(df.time_collisions_s.sum() / df.wall_s.sum()),
+            "collision_share": float(df.time_collisions_s.sum() / df.sim_s.sum()),
             "self_proximity_max": int(df.self_proximity.max()),
             "impact_zone_rounds_max": int(df.impact_zone_rounds.max()),
             "intersections_found_max": int(df.intersections_found.max()),

@@ -49,10 +49,10 @@ def table(frames: pd.DataFrame) -> pd.DataFrame:
         row = {"scene": scene, "mode": mode,
                "faces_min": d.faces.min(), "faces_max": d.faces.max(), "faces_mean": d.faces.mean(),
                "faces_in_view_mean": d.faces_in_view.mean(),
-               "s_per_frame_min": d.wall_s.min(), "s_per_frame_max": d.wall_s.max(),
-               "s_per_frame_mean": d.wall_s.mean()}
+               "s_per_frame_min": d.sim_s.min(), "s_per_frame_max": d.sim_s.max(),
+               "s_per_frame_mean": d.sim_s.mean()}
         for phase, cols in PHASE_SHARES.items():
-            row[f"share_{phase}"] = d[cols].sum(axis=1).sum() / d.wall_s.sum()
+            row[f"share_{phase}"] = d[cols].sum(axis=1).sum() / d.sim_s.sum()
         out.append(row)
     t = pd.DataFrame(out)
     for ref in ("nonadaptive", "adaptive"):
@@ -101,7 +101,7 @@ def main(argv=None) -> None:
             df = run(scene, mode, args.frames, args.scale, cameras.get(scene))
             runs.append(df)
             print(f"{scene:16s} {mode:12s} done: {df.faces.mean():8.0f} faces, "
-                  f"{df.wall_s.iloc[args.warmup:].mean():.3f} s/frame")
+                  f"{df.sim_s.iloc[args.warmup:].mean():.3f} s/frame")
     frames = pd.concat(runs, ignore_index=True)
     frames.to_parquet(out_dir / "frames.parquet")
     t = table(frames[frames["frame"] > args.warmup])

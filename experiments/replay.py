@@ -7,7 +7,7 @@ Reads RUN_DIR/config.yaml (the resolved config), runs it again into ``--out`` (d
 folders of a sweep do not take it for a run) and compares:
 
 * frames.parquet, column by column and frame by frame, over every deterministic column: all
-  except the wall-clock columns ``time_*`` and ``wall_*`` (time per phase, time per frame),
+  except the wall-clock columns ``time_*``, ``wall_*`` and ``sim_s`` (time per phase, per frame),
   which depend on the machine and its load. Counts, energies, speeds, solver iterations and
   residuals, remesh and view-factor statistics must be identical;
 * the final node positions (final_state.npz, float64), when the replay covers the whole
@@ -67,8 +67,9 @@ class ReplayError(ValueError):
 
 
 def machine_dependent(column: str) -> bool:
-    """Wall-clock columns (time per phase ``time_*``, per frame ``wall_*``): excluded from comparison."""
-    return column.startswith("time_") or column.startswith("wall_")
+    """Wall-clock columns (time per phase ``time_*``, per frame ``wall_*``, simulation time per frame
+    ``sim_s``): excluded from comparison."""
+    return column.startswith(("time_", "wall_")) or column == "sim_s"
 
 
 def _equal(a: np.ndarray, b: np.ndarray, rtol: float) -> np.ndarray:

@@ -16,18 +16,21 @@ cloth.runner.combine_crowd). Each character's results are those of running it al
 from __future__ import annotations
 
 import json
+import os
 import re
 import sys
 import uuid
 from pathlib import Path
 
 import hydra
+import numba
 from hydra.types import RunMode
 from joblib import Parallel, delayed
 from omegaconf import DictConfig, OmegaConf
 
 from cloth.io.manifest import environment_manifest, write_json_atomic, write_text_atomic
 from cloth.io.recorder import RerunRecorder
+from cloth.scenes.registry import CROWDS
 from cloth.simulation import SimulationDiverged
 from experiments.build import ConfigError, build_simulation, crowd_size
 
@@ -101,6 +104,21 @@ def run_crowd(cfg: DictConfig, out_dir: Path, count: int) -> dict:
     return summary
 
 
+def threads_per_run(cores: int, runs_at_once: int) -> int:
+    """Numba threads for each of `runs_at_once` runs on `cores` cores, so that runs x threads <=
+    cores (at least one thread each): runs that are timed must not compete for cores."""
+    return max(1, int(cores) // max(1, int(runs_at_once)))
+
+
+def share_cores(runs_at_once: int) -> int:
+    """Give this process, and the processes it starts (a crowd's characters), their share of the
+    machine's cores; returns the thread count (recorded as numba_threads in manifest.json)."""
+    threads = threads_per_run(os.cpu_count() or 1, runs_at_once)
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    os.environ["NUMBA_NUM_THREADS"] = str(threads)  # inherited by worker processes started from here
+    return numba.get_num_threads()
+
+
 def run_from_config(cfg: DictConfig, out_dir: Path) -> dict:
     """Validate, build, run and record; returns the summary (raises ConfigError first if bad)."""
     from cloth.runner import run  # noqa: PLC0415 - import cost (module note)
@@ -125,6 +143,11 @@ def main(cfg: DictConfig) -> None:
     # In a multirun a run that goes bad must not stop the others: its summary.json says
     # 'diverged' and the aggregation reports it; a single run exits non-zero.
     multirun = hydra_cfg.mode == RunMode.MULTIRUN
+    # runs at once on this machine: the launcher's parallel runs (joblib's n_jobs; a cluster
+    # launcher's runs each get a machine of their own), times a crowd's parallel characters
+    launcher_jobs = int(hydra_cfg.launcher.get("n_jobs", 1) or 1) if multirun else 1
+    crowd = max(1, int(cfg.get("crowd_jobs", 1) or 1)) if cfg.scene.name in CROWDS else 1
+    share_cores(launcher_jobs * crowd)
     try:
         summary = run_from_config(cfg, out_dir)
     except ConfigError as exc:
@@ -139,7 +162,8 @@ def main(cfg: DictConfig) -> None:
     if "characters" in summary:
         print(f"  crowd of {summary['characters']} characters (one sub-folder each); status: {summary['status']}")
     print(f"  frames: {summary['frames_completed']}  faces: {summary.get('faces_mean', 0):.0f}  "
-          f"mean time per frame: {summary.get('wall_s_mean', 0):.3f} s")
+          f"mean time per frame: {summary.get('sim_s_mean', 0):.3f} s simulation, "
+          f"{summary.get('wall_s_mean', 0):.3f} s with I/O")
     for note in summary.get("notes", []):
         print(f"  note: {note}")
     if cfg.output.rerun:

@@ -146,8 +146,8 @@ def run_case(c: Case, frames: int, scale: str = "small") -> dict:
         crossings_at_end=len(find_intersections(mesh.face_nodes, mesh.node_x)[0]),
         min_face_quality=float(df.min_face_quality.min()) if len(df) else np.nan,
         faces_max=int(df.faces.max()) if len(df) else 0,
-        s_per_frame=float(df.wall_s.mean()) if len(df) else np.nan,
-        collision_share=float(df.time_collisions_s.sum() / df.wall_s.sum()) if len(df) else np.nan,
+        s_per_frame=float(df.sim_s.mean()) if len(df) else np.nan,
+        collision_share=float(df.time_collisions_s.sum() / df.sim_s.sum()) if len(df) else np.nan,
     )
     row["ok"] = bool(not row["error"] and row["frames_run"] == frames and row["finite"]
                      and row["max_kinetic_energy_j"] <= ke_bound and row["intersections_left_max"] == 0

@@ -38,7 +38,8 @@ PAPER_TIMING_FILES = {
     ("solo_dancer", "viewdep"): ("solo_vd_1.csv",),
     ("multiple_dancers", "viewdep"): tuple(f"crowd_vd_{i}.csv" for i in range(10)),
 }
-PAPER_TIMING_COLUMNS = {"FrameNum": "frame", "Time/Frame": "wall_s", "Faces": "faces", "Verts": "verts"}
+# The paper's Time/Frame is the sum of its simulation phases: our sim_s (cloth.core.records.SIM_PHASES).
+PAPER_TIMING_COLUMNS = {"FrameNum": "frame", "Time/Frame": "sim_s", "Faces": "faces", "Verts": "verts"}
 
 
 class Skip(Exception):
@@ -94,7 +95,7 @@ def resolve_paper_timings(path) -> Path | None:
 
 
 def read_paper_timings(folder) -> dict[tuple[str, str], pd.DataFrame]:
-    """The paper's per-frame records: (scene, mode) -> frame, wall_s, faces, verts (a crowd's
+    """The paper's per-frame records: (scene, mode) -> frame, sim_s, faces, verts (a crowd's
     dancers summed per frame). A (scene, mode) whose files are absent or unreadable is left out."""
     out = {}
     if folder is None:

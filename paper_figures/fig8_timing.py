@@ -59,8 +59,8 @@ def make(runset: RunSet, out, paper_timings=None, log=print) -> list[Path]:
         ours = {}
         for r in sorted(group.itertuples(), key=lambda r: _mode_order(r.mode)):
             fr = runset.frames[runset.frames["run"] == r.run]
-            ours[r.mode] = (fr["frame"].to_numpy(), fr["wall_s"].to_numpy(float))
-        theirs = {m: (d["frame"].to_numpy(), d["wall_s"].to_numpy(float))
+            ours[r.mode] = (fr["frame"].to_numpy(), fr["sim_s"].to_numpy(float))
+        theirs = {m: (d["frame"].to_numpy(), d["sim_s"].to_numpy(float))
                   for m in MODES for (s, m2), d in paper.items() if s == scene and m2 == m}
         cols = 2 if theirs else 1
         fig, axes = plt.subplots(2, cols, figsize=(5.5 * cols, 6), squeeze=False, sharex="col")

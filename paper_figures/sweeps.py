@@ -49,9 +49,7 @@ def sweep_points(runs: pd.DataFrame, param: str) -> pd.DataFrame:
         pts = one_factor(group, col, [c for c in OTHERS if c != col])
         if pts.empty:
             continue
-        base = baseline_for(cand, scene, scale)
-        if base is None:
-            base = baseline_for(runs, scene, scale)
+        base = baseline_for(cand, scene, scale)  # the sweep's own adaptive run, never another study's
         for r in pts.sort_values(col).itertuples():
             rows.append({"parameter": param, "scene": scene, "scale": scale, "value": float(getattr(r, col)),
                          "run": r.run, "variant": r.variant, "faces_mean": r.faces_mean, "time_mean_s": r.time_mean_s,

@@ -240,7 +240,7 @@ def test_bad_state_file_names_the_file(tmp_path):
 
 # ---- the accuracy CLI on two tiny real runs ----------------------------------------------------
 
-TINY = ["scene=sheet_on_sphere", "camera=sheet_half", "frames=3", *QUIET]
+TINY = ["scene=sheet_on_sphere", "camera=sheet_half", "frames=3", "output.states_every=1", *QUIET]
 
 
 @pytest.fixture(scope="module")

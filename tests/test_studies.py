@@ -10,11 +10,14 @@ against the reference run and aggregates the folders into tables.
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import pytest
 import yaml
 from helpers import ROOT, compose_config, config_choices, run_module
+
+from experiments.run import threads_per_run
 
 EXPERIMENTS = config_choices("experiment")
 # A tiny multirun: 2 frames of the sheet dropped on a sphere, no recording.
@@ -98,6 +101,7 @@ def test_joblib_multirun_with_study_callback_measures_and_aggregates(tmp_path):
     """The default launcher runs a 3-run study (reference, adaptive, viewdep) in 2 processes; its
     callback writes accuracy against the reference and the study's tables."""
     sweep = _multirun(tmp_path, "camera=sheet_half", "+point=reference,adaptive,viewdep", "study=tiny",
+                      "output.states_every=1",  # a study that measures accuracy asks for the states
                       "+hydra.callbacks.study._target_=experiments.callbacks.StudyCallback")
     runs = _completed(sweep)
     assert len(runs) == 3
@@ -167,3 +171,11 @@ def test_a_preset_runs_as_a_multirun_and_its_callback_aggregates(tmp_path):
     assert sorted(c["mode"]["view"]["anticipation"] for c in cfgs if not c["reference"]) == [False, True]
     assert sum((r / "accuracy.json").exists() for r in runs) == 2
     assert any((sweep / "figures").iterdir())
+    # the launcher runs 2 at once (conf/cluster/local.yaml): each run had its share of the cores
+    threads = {json.loads((r / "manifest.json").read_text())["numba_threads"] for r in runs}
+    assert threads == {threads_per_run(os.cpu_count(), 2)}
+
+
+def test_runs_at_once_share_the_cores():
+    assert [threads_per_run(2, n) for n in (1, 2, 3)] == [2, 1, 1]
+    assert [threads_per_run(8, n) for n in (1, 2, 3, 8, 16)] == [8, 4, 2, 1, 1]

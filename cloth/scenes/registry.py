@@ -208,12 +208,23 @@ def mesh_obstacle(material: Material, *, resolution: int = 24, size: float = 1.0
 
 
 CHARACTER_EFFECTS = ("membrane", "bending", "gravity", "damping", "obstacles")
+# m, standard deviation of the seeded noise on a garment's free nodes at the start (each axis):
+# far below the contact thickness (5 mm) and the edges (cm), it only makes seeds differ.
+CHARACTER_JITTER = 1e-4
 
 
 def _character_scene(name, material, body, garments, *, thickness, friction, frame_time, steps_per_frame,
-                     effects, notes=(), obstacle=None) -> Scene:
-    """`obstacle`: what the cloth collides with, if not the capsule `body` (a mesh body)."""
+                     effects, jitter, seed, notes=(), obstacle=None) -> Scene:
+    """`obstacle`: what the cloth collides with, if not the capsule `body` (a mesh body).
+    `jitter` (m): standard deviation of the seeded noise added to the free garment nodes' initial
+    positions (each axis), so that two seeds give two trajectories; the pinned nodes stay."""
+    if not jitter >= 0:
+        raise SceneError(f"scene {name!r}: jitter must be >= 0 m, got {jitter}")
     mesh, pins = merge_garments(garments)
+    if jitter > 0:
+        noise = jitter * np.random.default_rng(seed).standard_normal(mesh.node_x.shape)
+        noise[np.concatenate(pins)] = 0.0
+        mesh.node_x += noise
     handles = [Handle(p, g.motion) for p, g in zip(pins, garments)]
     return Scene(name=name, mesh=mesh, material=material, effects=frozenset(effects),
                  frame_time=frame_time, steps_per_frame=steps_per_frame,
@@ -284,7 +295,8 @@ def solo_dancer(material: Material, *, resolution: int = 48, waist_radius: float
                 speed: float = 1.0, spin_hz: float = 1.0, settle: float = 0.5, blend_in: float = 1.0,
                 position=(0.0, 0.0, 0.0), heading: float = 0.0, phase: float = 0.0,
                 thickness: float = 0.005, friction: float = 0.3, frame_time: float = 0.04,
-                steps_per_frame: int = 8, seed: int = 0, effects=CHARACTER_EFFECTS, body: str = "capsules",
+                steps_per_frame: int = 8, seed: int = 0, jitter: float = CHARACTER_JITTER,
+                effects=CHARACTER_EFFECTS, body: str = "capsules",
                 body_segments: int = 12, garment: str = "circle_skirt", garment_obj=None, garment_scale: float = 1.0,
                 garment_offset=(0.0, 0.0, 0.0), garment_uv_scale: float = 1.0, garment_joint: str = "abdomen",
                 garment_pin_distance: float = 0.0, cell_aspect: float = 1.0) -> Scene:
@@ -314,7 +326,7 @@ def solo_dancer(material: Material, *, resolution: int = 48, waist_radius: float
     obstacle = _body_obstacle(name, body, body_kind, body_segments)
     return _character_scene(name, material, body, [skirt], thickness=thickness, friction=friction,
                             frame_time=frame_time, steps_per_frame=steps_per_frame, effects=effects,
-                            obstacle=obstacle)
+                            jitter=jitter, seed=seed, obstacle=obstacle)
 
 
 NO_SELF_COLLISION_NOTE = ("karate: the scene does not declare self_collision, so the two skirts pass through "
@@ -326,7 +338,8 @@ def karate(material: Material, *, resolution: int = 48, inner_radius: float = 0.
            speed: float = 1.0, settle: float = 0.5,
            blend_in: float = 1.0, position=(0.0, 0.0, 0.0), heading: float = 0.0, phase: float = 0.0,
            thickness: float = 0.005, friction: float = 0.3, frame_time: float = 0.04, steps_per_frame: int = 8,
-           seed: int = 0, effects=CHARACTER_EFFECTS + ("self_collision",), body: str = "capsules",
+           seed: int = 0, jitter: float = CHARACTER_JITTER, effects=CHARACTER_EFFECTS + ("self_collision",),
+           body: str = "capsules",
            body_segments: int = 12) -> Scene:
     """A karateka (opening pose with the fists forward, stance, punches, a front kick, a half
     turn) in a layered outfit: a long wide skirt (hakama, a tube with a seam at the back) pinned at
@@ -354,7 +367,7 @@ def karate(material: Material, *, resolution: int = 48, inner_radius: float = 0.
     notes = [] if "self_collision" in effects else [NO_SELF_COLLISION_NOTE]
     return _character_scene(name, material, body, garments, thickness=thickness, friction=friction,
                             frame_time=frame_time, steps_per_frame=steps_per_frame, effects=effects,
-                            notes=notes, obstacle=obstacle)
+                            jitter=jitter, seed=seed, notes=notes, obstacle=obstacle)
 
 
 def crowd_placement(count: int, spacing: float, columns: int, phase_step: float, heading_step: float,
