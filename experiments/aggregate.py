@@ -17,14 +17,19 @@ missing or unreadable, a required column (:data:`REQUIRED_FRAME_COLUMNS`) is mis
 NaN, its status is not ``completed`` or it has fewer frames than requested. An unreadable
 accuracy.json/accuracy.parquet is reported too; the run is kept without accuracy.
 
-Table 1 (:func:`table1`). One row per (scene, scale, mode, variant); the fine reference runs
-(``reference: true``) are left out. When several runs share that key the latest one is used (the
-manifest's ``timestamp_utc``, else the config's modification time) and the others are listed in
-the table's notes as superseded. Speed-up = mean time per frame of the ``adaptive`` run of the
-same scene and scale (its default variant when there are several) / this row's mean time per
-frame. Time per frame is the frame's simulation time ``sim_s`` (sizing, remesh, physics, solve,
-collisions: the paper's Time/Frame, cloth.core.records.SIM_PHASES; for runs recorded before that
-column, the sum of those phase columns); I/O is its own column (``io_mean_s``), never inside it.
+Table 1 (:func:`table1`). One row per (scene, scale, mode, variant), made of its repeats: the
+runs of that key with distinct seeds (``repeats=N`` runs each cell N times); of runs that share a
+seed the latest is used (the manifest's ``timestamp_utc``, else the config's modification time)
+and the others are listed in the table's notes as superseded; the fine reference runs
+(``reference: true``) are left out. Every number is the median over the repeats of the per-run
+value, with the range of the per-run mean times. Speed-up, per seed = mean time per frame of the
+``adaptive`` run (default variant, same scene and scale) / this row's; the table gives the median
+and range over the seeds. A row whose runs ran other code (commit and uncommitted diff, from
+manifest.json) or other frames is refused and named in problems.txt, as is a speed-up against a
+baseline that did. Time per frame is the frame's simulation time ``sim_s`` (sizing, remesh,
+physics, solve, collisions: the paper's Time/Frame, cloth.core.records.SIM_PHASES; for runs
+recorded before that column, the sum of those phase columns); I/O is its own column
+(``io_mean_s``), never inside it.
 The Markdown and LaTeX of the tables are made by experiments.tables.
 """
 
@@ -59,8 +64,8 @@ ACCURACY_KEYS = ("error_px_mean", "error_px_max", "silhouette_px_mean", "surface
 STAT_COLUMNS = {"faces": "faces", "verts": "verts", "sim_s": "time"}  # frames column -> Table 1 name
 TABLE1_COLUMNS = ("scene", "scale", "mode", "variant", "frames", "faces_min", "faces_max", "faces_mean",
                   "verts_min", "verts_max", "verts_mean", "time_min_s", "time_max_s", "time_mean_s", "io_mean_s",
-                  "speedup",
-                  "baseline", "run")
+                  "time_mean_lo_s", "time_mean_hi_s", "repeats", "seeds", "speedup", "speedup_lo", "speedup_hi",
+                  "code", "baseline", "run")
 
 
 class AggregateError(ValueError):
@@ -196,6 +201,24 @@ def _timestamp(path: Path) -> str:
     return pd.Timestamp(t, unit="s", tz="UTC").isoformat()
 
 
+def _manifest(path: Path) -> dict:
+    """manifest.json of a run folder ({} when absent or unreadable: runs made by other tools)."""
+    try:
+        m = json.loads((path / "manifest.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    return m if isinstance(m, dict) else {}
+
+
+def code_label(manifest: dict) -> str:
+    """The code a run ran: its commit (12 hex digits), with ``+diff:<sha1 8>`` when the work tree
+    had uncommitted changes; '' when the manifest does not say."""
+    commit = str(manifest.get("git_commit") or "")[:12]
+    if commit and manifest.get("git_dirty"):
+        commit += f"+diff:{str(manifest.get('git_diff_sha1') or '?')[:8]}"
+    return commit
+
+
 def _camera_cuts(cfg: dict) -> tuple:
     """Times (s) of the camera's jump cuts: the start of every shot after the first."""
     cam = cfg.get("camera") or {}
@@ -274,6 +297,9 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
     row = {"path": str(path), "scene": str(scene), "mode": str(mode), "scale": _text(cfg.get("scale")),
            "study": _text(cfg.get("study")), "variant": _text(cfg.get("variant")),
            "reference": bool(cfg.get("reference") or False), "seed": cfg.get("seed"), "timestamp": _timestamp(path)}
+    manifest = _manifest(path)
+    row["code"] = code_label(manifest)
+    row["numba_threads"] = _float(manifest.get("numba_threads"))
     for col, key in SWEPT.items():
         v = effective_view_setting(cfg, key)
         row[col] = (math.nan if v is None else bool(v)) if col == "anticipation" else _float(v)
@@ -393,11 +419,14 @@ def table1_runs(runs: pd.DataFrame) -> pd.DataFrame:
     return study if len(study) else runs
 
 
-def baseline_for(runs: pd.DataFrame, scene: str, scale: str) -> pd.Series | None:
+def baseline_for(runs: pd.DataFrame, scene: str, scale: str, seed=None) -> pd.Series | None:
     """The adaptive run of a scene and scale that speed-ups are measured against: the only one,
-    else the latest of the default variant; None when there is none or it is ambiguous."""
+    else the latest of the default variant; None when there is none or it is ambiguous. With a
+    `seed`, only the adaptive runs of that seed (the same repeat) are candidates."""
     cand = runs[(runs["scene"] == scene) & (runs["scale"] == scale) & (runs["mode"] == "adaptive")
                 & ~runs["reference"].astype(bool)]
+    if seed is not None and "seed" in cand.columns:
+        cand = cand[cand["seed"] == seed]
     if len(cand) > 1:
         cand = cand[cand.apply(is_default_variant, axis=1)]
         cand, _ = latest(cand, ("scene",))
@@ -414,27 +443,90 @@ def _order(df: pd.DataFrame) -> pd.DataFrame:
 
 # ---- Table 1 -------------------------------------------------------------------------------------
 
+ROW_KEY = ("scene", "scale", "mode", "variant")
+# What the runs of one Table 1 row, and a row and its adaptive baseline, must share: the code
+# they ran (commit and uncommitted diff) and the frames they simulated (the scale is in ROW_KEY).
+MUST_AGREE = {"code": "commit", "frames": "frames", "scale": "scale"}
+
+
+def _disagreement(runs: pd.DataFrame) -> str:
+    """'' when the runs agree on MUST_AGREE, else what differs and the values."""
+    parts = []
+    for col, what in MUST_AGREE.items():
+        if col in runs.columns and runs[col].astype(str).nunique() > 1:
+            parts.append(f"{what} ({', '.join(sorted(runs[col].astype(str).unique()))})")
+    return ", ".join(parts)
+
+
+def _label(key) -> str:
+    scene, scale, mode, variant = key
+    return f"{scene}/{scale or 'no scale'}/{mode}" + (f"/{variant}" if variant and variant != mode else "")
+
+
 def table1(runs: pd.DataFrame) -> pd.DataFrame:
-    """The paper's Table 1 of any set of runs (columns TABLE1_COLUMNS; see the module docstring for
-    duplicates and the speed-up). Notes (superseded runs, missing baselines) are in
-    ``.attrs['notes']``."""
+    """The paper's Table 1 of any set of runs: one row per (scene, scale, mode, variant), made of
+    that cell's repeats (its runs with distinct seeds; of runs with the same seed, the latest).
+
+    Every statistic (faces, vertices, time per frame: min, max, mean) is the median over the
+    repeats of the per-run value; ``time_mean_lo_s``/``time_mean_hi_s`` are the smallest and
+    largest per-run means. Speed-up: per seed, the adaptive run's mean time per frame (default
+    variant, same scene and scale) over this row's run of that seed; ``speedup`` is the median over
+    the seeds both have, ``speedup_lo``/``speedup_hi`` their range. A row whose repeats differ in
+    commit (code, with the uncommitted diff), frames or scale is refused: it is left out and named
+    in ``.attrs['problems']``, as is a speed-up whose baseline ran other code or other frames.
+    Notes (superseded runs, missing baselines) are in ``.attrs['notes']``."""
     runs = runs[~runs["reference"].astype(bool)] if len(runs) else runs
     if runs.empty:
         out = pd.DataFrame(columns=list(TABLE1_COLUMNS))
-        out.attrs["notes"] = []
+        out.attrs["notes"], out.attrs["problems"] = [], []
         return out
-    chosen, notes = latest(runs, ("scene", "scale", "mode", "variant"))
+    if "seed" not in runs.columns:
+        runs = runs.assign(seed=0)
+    runs = runs.assign(seed=runs["seed"].fillna(0).astype(int),
+                       code=runs["code"].fillna("") if "code" in runs.columns else "")
+    chosen, notes = latest(runs, (*ROW_KEY, "seed"))
+    problems: list[str] = []
+    groups = {}
+    for key, g in chosen.groupby(list(ROW_KEY), sort=False, dropna=False):
+        bad = _disagreement(g)
+        if bad:
+            problems.append(f"Table 1 row {_label(key)} refused: its runs differ in {bad} "
+                            f"({', '.join(sorted(g['run']))})")
+            continue
+        groups[key] = g.sort_values("seed")
     rows = []
-    for r in chosen.itertuples():
-        base = baseline_for(chosen, r.scene, r.scale)
+    for key, g in groups.items():
+        scene, scale, mode, variant = key
+        base = None
+        for bkey in ((scene, scale, "adaptive", ""), (scene, scale, "adaptive", "adaptive")):
+            if bkey in groups:
+                base = groups[bkey]
+        speed = {}
         if base is None:
-            notes.append(f"{r.run}: no unique adaptive run of {r.scene} ({r.scale or 'no scale'}): speed-up left out")
-        rows.append({"scene": r.scene, "scale": r.scale, "mode": r.mode, "variant": r.variant, "frames": r.frames,
-                     **{c: getattr(r, c) for c in TABLE1_COLUMNS[5:15]},
-                     "speedup": (base["time_mean_s"] / r.time_mean_s) if base is not None else math.nan,
-                     "baseline": base["run"] if base is not None else "", "run": r.run})
+            notes.append(f"{_label(key)}: no adaptive run of {scene} ({scale or 'no scale'}) in the table: "
+                         "speed-up left out")
+        elif _disagreement(pd.concat([g, base])):
+            problems.append(f"Table 1 row {_label(key)}: speed-up refused: its adaptive baseline differs in "
+                            f"{_disagreement(pd.concat([g, base]))}")
+        else:
+            b = base.set_index("seed")["time_mean_s"]
+            speed = {s: b[s] / t for s, t in zip(g["seed"], g["time_mean_s"]) if s in b.index}
+            if not speed:
+                notes.append(f"{_label(key)}: no seed in common with its adaptive runs: speed-up left out")
+        ratios = pd.Series(list(speed.values()), dtype=float)
+        rows.append({"scene": scene, "scale": scale, "mode": mode, "variant": variant,
+                     "frames": int(g["frames"].iloc[0]),
+                     **{c: float(g[c].median()) for c in TABLE1_COLUMNS[5:15]},
+                     "time_mean_lo_s": float(g["time_mean_s"].min()), "time_mean_hi_s": float(g["time_mean_s"].max()),
+                     "repeats": len(g), "seeds": " ".join(str(s) for s in g["seed"]),
+                     "speedup": float(ratios.median()) if len(ratios) else math.nan,
+                     "speedup_lo": float(ratios.min()) if len(ratios) else math.nan,
+                     "speedup_hi": float(ratios.max()) if len(ratios) else math.nan,
+                     "code": str(g["code"].iloc[0]),
+                     "baseline": " ".join(base["run"]) if speed else "", "run": " ".join(g["run"])})
     out = _order(pd.DataFrame(rows, columns=list(TABLE1_COLUMNS)))
     out.attrs["notes"] = sorted(set(notes))
+    out.attrs["problems"] = problems
     return out
 
 
@@ -481,6 +573,9 @@ def main(argv=None) -> int:
         print("aggregate: no usable run folder under " + ", ".join(map(str, args.roots)), file=sys.stderr)
         return 1
     t1 = table1(table1_runs(runset.runs))
+    refused = [Problem(Path(args.out or ".") / "table1.md", p) for p in t1.attrs["problems"]]
+    report_problems(refused)
+    runset.problems.extend(refused)
     print(table1_markdown(t1))
     if args.out is not None:
         files = write_runs(runset, args.out) + write_table1(t1, args.out)

@@ -4,8 +4,8 @@
 re-simulating) and
 
 1. measures accuracy: when the study has a reference run (``reference: true``, the point
-   ``conf/point/reference.yaml``), every other completed run of the same scene is measured
-   against it (experiments.accuracy: screen-space error in pixels and the ballooning of
+   ``conf/point/reference.yaml``), every other completed run of the same scene and seed is
+   measured against it (experiments.accuracy: screen-space error in pixels and the ballooning of
    out-of-view cloth), which writes accuracy.parquet and accuracy.json into each run folder;
 2. makes the study's tables and figures (paper_figures) into ``<sweep dir>/figures``.
 
@@ -40,17 +40,19 @@ def _completed(run: Path) -> bool:
 
 
 def measure_accuracy(sweep_dir: Path, log=print) -> int:
-    """Measure every completed run against its scene's reference run in `sweep_dir`; returns how
+    """Measure every completed run against the reference run of its scene and seed in `sweep_dir`; returns how
     many runs were measured (0 when the study has no reference)."""
     runs = run_folders(sweep_dir)
     cfgs = {r: yaml.safe_load((r / "config.yaml").read_text()) for r in runs}
     measured = 0
     for ref in [r for r in runs if cfgs[r].get("reference")]:
-        scene = cfgs[ref]["scene"]["name"]
+        scene, seed = cfgs[ref]["scene"]["name"], cfgs[ref].get("seed")
         if not _completed(ref):
             log(f"accuracy: reference {ref} did not complete; its scene's runs are not measured")
             continue
-        targets = [r for r in runs if r != ref and cfgs[r]["scene"]["name"] == scene and _completed(r)]
+        # with repeats, each seed has its own reference: a run is measured against its seed's
+        targets = [r for r in runs if r != ref and cfgs[r]["scene"]["name"] == scene and cfgs[r].get("seed") == seed
+                   and not cfgs[r].get("reference") and _completed(r)]
         if not targets:
             continue
         log(f"accuracy: {len(targets)} run(s) of {scene} against {ref.name}")

@@ -1,15 +1,15 @@
 """The main job: reproduce the paper's Table 1, its Fig. 8 and the accuracy/time Pareto figure.
 
-    python -m experiments.paper [--scale small|paper] [--jobs 2] [--out results/paper/<timestamp>]
+    python -m experiments.paper [--scale small|paper] [--jobs N] [--out results/paper/<timestamp>]
                                 [--studies table1 accuracy ...] [--frames N]
 
 Runs each study as a Hydra multirun (``python -m experiments.run -m +experiment=<study>``, joblib
-launcher, ``--jobs`` runs at a time) into ``<out>/<study>/``; every study's multirun ends with the
-study callback (experiments.callbacks), which measures each run's screen-space error against the
-study's fine nonadaptive reference run when it has one. Then ``python -m paper_figures`` makes every
-table and figure from the run folders into ``<out>/figures/``, and the paths are printed. Before
-the studies, a two-frame run into ``<out>/warmup/`` fills numba's kernel cache, so that no timed
-frame includes compilation.
+launcher, ``--jobs`` runs at a time: one by default, so that timed runs never compete) into
+``<out>/<study>/``; every study's multirun ends with the study callback (experiments.callbacks),
+which measures each run's screen-space error against the study's fine nonadaptive reference run
+when it has one. Then ``python -m paper_figures`` makes every table and figure from the run folders
+into ``<out>/figures/``, and the paths are printed. Before the studies, a two-frame run into
+``<out>/warmup/`` fills numba's kernel cache, so that no timed frame includes compilation.
 
 A study that fails (a run that diverges, a killed process) does not stop the others: its run
 folders stay as written, the aggregation reports the broken ones by name and skips them, and the
@@ -46,7 +46,9 @@ def study_command(study: str, out: Path, scale: str, jobs: int, frames: int | No
 def parse_args(argv=None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog="python -m experiments.paper", description=__doc__.split("\n")[0])
     ap.add_argument("--scale", default="small", choices=("small", "paper"))
-    ap.add_argument("--jobs", type=int, default=2, help="runs in parallel (local processes)")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="runs at once (local processes; default 1: timed runs do not compete; with N, each run "
+                         "gets cores // N numba threads)")
     ap.add_argument("--out", type=Path, default=None, help="default results/paper/<timestamp>")
     ap.add_argument("--studies", nargs="+", default=list(DEFAULT_STUDIES), metavar="STUDY",
                     help=f"any of {', '.join(STUDIES)} (default: {' '.join(DEFAULT_STUDIES)})")

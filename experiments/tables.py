@@ -85,15 +85,35 @@ def _md_table(header: list[str], rows: list[list[str]], align: str) -> str:
     return "\n".join(lines)
 
 
+def _with_range(v: str, lo: str, hi: str, repeats) -> str:
+    """`v (lo–hi)` for a row of several repeats, else `v`."""
+    return f"{v} ({lo}–{hi})" if v and _n(repeats) > 1 else v
+
+
+def _n(v) -> int:
+    try:
+        return 0 if v is None or (isinstance(v, float) and math.isnan(v)) else int(v)
+    except (TypeError, ValueError):
+        return 0
+
+
 def _ours_cells(t: pd.DataFrame) -> tuple[list[str], list[list[str]], str]:
     d = _time_digits(t)
-    header = ["scene", "scale", "mode", "variant", "frames", "faces min", "faces max", "faces mean", "verts min",
-              "verts max", "verts mean", "s/frame min", "s/frame max", "s/frame mean", "I/O s/frame", "speed-up"]
-    rows = [[r.scene, r.scale, MODE_LABELS.get(r.mode, r.mode), r.variant if r.variant != r.mode else "",
-             str(r.frames), _int(r.faces_min), _int(r.faces_max), _int(r.faces_mean), _int(r.verts_min),
-             _int(r.verts_max), _int(r.verts_mean), _sec(r.time_min_s, d), _sec(r.time_max_s, d),
-             _sec(r.time_mean_s, d), _sec(r.io_mean_s, d), _x(r.speedup)] for r in t.itertuples()]
-    return header, rows, "llllrrrrrrrrrrrr"
+    header = ["scene", "scale", "mode", "variant", "frames", "runs", "faces min", "faces max", "faces mean",
+              "verts min", "verts max", "verts mean", "s/frame min", "s/frame max", "s/frame mean (range)",
+              "I/O s/frame", "speed-up (range)"]
+    rows = []
+    for r in t.itertuples():
+        reps = getattr(r, "repeats", 1)
+        time_mean = _with_range(_sec(r.time_mean_s, d), _sec(getattr(r, "time_mean_lo_s", math.nan), d),
+                                _sec(getattr(r, "time_mean_hi_s", math.nan), d), reps)
+        lo, hi = getattr(r, "speedup_lo", math.nan), getattr(r, "speedup_hi", math.nan)
+        speed = _with_range(_x(r.speedup), _x(lo)[:-1], _x(hi)[:-1], reps)
+        rows.append([r.scene, r.scale, MODE_LABELS.get(r.mode, r.mode), r.variant if r.variant != r.mode else "",
+                     str(r.frames), str(_n(reps) or 1), _int(r.faces_min), _int(r.faces_max), _int(r.faces_mean),
+                     _int(r.verts_min), _int(r.verts_max), _int(r.verts_mean), _sec(r.time_min_s, d),
+                     _sec(r.time_max_s, d), time_mean, _sec(r.io_mean_s, d), speed])
+    return header, rows, "llllrrrrrrrrrrrrr"
 
 
 def _paper_cells(p: pd.DataFrame) -> tuple[list[str], list[list[str]], str]:
@@ -114,10 +134,14 @@ def table1_markdown(ours: pd.DataFrame, paper: pd.DataFrame | None = None) -> st
     else:
         out.append("(no runs)")
     out += ["", "Time per frame in seconds of simulation (sizing, remeshing, physics, solve, collisions: the "
-            "paper's Time/Frame), I/O apart; speed-up = mean time per frame of the adaptive run of the same "
-            "scene and scale / this row's.", ""]
+            "paper's Time/Frame), I/O apart. With several runs (repeats with distinct seeds) every number is the "
+            "median over the runs of the per-run value, the mean's range in brackets the smallest and largest "
+            "per-run mean. Speed-up = per seed, the adaptive run's mean time per frame (same scene and scale) / "
+            "this row's; the median over the seeds, their range in brackets.", ""]
     for n in ours.attrs.get("notes", []):
         out.append(f"- note: {n}")
+    for n in ours.attrs.get("problems", []):
+        out.append(f"- refused: {n}")
     out += ["", f"## Table 1: the paper ({PAPER_SOURCE}; 4 threads of a Xeon E5-2680 v2)", "",
             _md_table(*_paper_cells(paper)), ""]
     sbs = side_by_side(ours, paper)

@@ -41,6 +41,7 @@ def main(argv=None) -> int:
         except Exception:  # noqa: BLE001 - one broken figure does not stop the others; say which
             failed.append(name)
             print(f"{name}: FAILED\n{traceback.format_exc()}", file=sys.stderr)
+    write_text_atomic(files[1], "".join(f"{p}\n" for p in runset.problems))  # with what the figures refused
     print(f"\nfiles written ({len(files)}):")
     for f in files:
         print(f"  {f}")

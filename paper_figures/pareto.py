@@ -35,7 +35,7 @@ def pareto_front(time_s, error) -> np.ndarray:
 def pareto_table(runs: pd.DataFrame) -> pd.DataFrame:
     """One row per run with accuracy (never a reference): scene, scale, mode, variant, run,
     time_mean_s, error_px_mean, faces_mean, speedup (against the adaptive run of the scene in the
-    same study: a study's runs share a commit and a machine; NaN when that study has none), on_front."""
+    same study and seed: a study's runs share a commit and a machine; NaN when that study has none), on_front."""
     if runs.empty:
         return pd.DataFrame()
     pts = runs[~runs["reference"].astype(bool) & runs["error_px_mean"].notna() & runs["time_mean_s"].notna()]
@@ -43,7 +43,7 @@ def pareto_table(runs: pd.DataFrame) -> pd.DataFrame:
     for (scene, scale), g in pts.groupby(["scene", "scale"], sort=True):
         front = pareto_front(g["time_mean_s"], g["error_px_mean"])
         for r, on in zip(g.itertuples(), front):
-            base = baseline_for(runs[runs["study"] == r.study], scene, scale)
+            base = baseline_for(runs[runs["study"] == r.study], scene, scale, seed=r.seed)
             rows.append({"scene": scene, "scale": scale, "mode": r.mode, "variant": r.variant or r.mode, "run": r.run,
                          "time_mean_s": r.time_mean_s, "error_px_mean": r.error_px_mean, "faces_mean": r.faces_mean,
                          "speedup": base["time_mean_s"] / r.time_mean_s if base is not None else np.nan,

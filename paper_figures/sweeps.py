@@ -6,7 +6,8 @@ view-dependent method (nu_out, buckling k, anticipation window T, margin).
 Writes sweep_<param>.png/.pdf per parameter that varies and sweeps.csv/.md (every point). Runs
 of a parameter: its study's (sweep_<param>) when present, else all; within each scene and scale,
 the viewdep runs in which only that parameter varies (experiments of one factor), the latest
-per value. Speed-up = mean time per frame of the scene's adaptive run / the point's; error =
+per value. Speed-up = mean time per frame of the scene's adaptive run in the same study and of the
+same seed / the point's; error =
 error_px_mean of accuracy.json (absent points are left out of that panel). The paper's value of
 each parameter is marked by a dashed line.
 """
@@ -49,8 +50,9 @@ def sweep_points(runs: pd.DataFrame, param: str) -> pd.DataFrame:
         pts = one_factor(group, col, [c for c in OTHERS if c != col])
         if pts.empty:
             continue
-        base = baseline_for(cand, scene, scale)  # the sweep's own adaptive run, never another study's
         for r in pts.sort_values(col).itertuples():
+            # the sweep's own adaptive run of the same repeat (seed), never another study's
+            base = baseline_for(cand, scene, scale, seed=r.seed)
             rows.append({"parameter": param, "scene": scene, "scale": scale, "value": float(getattr(r, col)),
                          "run": r.run, "variant": r.variant, "faces_mean": r.faces_mean, "time_mean_s": r.time_mean_s,
                          "speedup": base["time_mean_s"] / r.time_mean_s if base is not None else np.nan,

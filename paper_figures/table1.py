@@ -12,7 +12,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from experiments.aggregate import table1, table1_runs
+from experiments.aggregate import Problem, table1, table1_runs
 from experiments.tables import write_table1
 
 from .common import RunSet, Skip, script_main
@@ -25,6 +25,9 @@ def make(runset: RunSet, out, paper_timings=None, log=print) -> list[Path]:
         raise Skip("no completed run")
     for note in t.attrs.get("notes", []):
         log(f"table1: note: {note}")
+    for problem in t.attrs.get("problems", []):  # rows refused: into problems.txt with the folders'
+        log(f"table1: {problem}")
+        runset.problems.append(Problem(Path(out) / "table1.md", problem))
     return write_table1(t, out)
 
 

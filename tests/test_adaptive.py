@@ -194,3 +194,33 @@ def test_refining_coarse_cloth_on_the_sphere_alternates_pop_filter_and_push_out(
     restricted = _refine_on_sphere(seed, monkeypatch, 3, 2)
     assert full["pop_energy_after_j"] < ALTERNATION_GAIN * one["pop_energy_after_j"]
     assert restricted["pop_energy_after_j"] == pytest.approx(full["pop_energy_after_j"], rel=RESTRICTED_ROUNDS_REL)
+
+
+def test_sizing_at_bounds_counts_the_clamped_faces_and_their_realised_edges():
+    from cloth.core.mesh import grid_mesh
+    from cloth.remeshing.sizing import clamp_sizing, sizing_at_bounds
+
+    mesh = grid_mesh(0.4, 0.2, 4, 2)  # 16 faces, material edges 0.1 m (sides) and 0.1414 m (diagonals)
+    size_min, size_max = 0.02, 0.2
+    raw = np.zeros((mesh.n_faces, 2, 2))
+    raw[:5] = np.diag([1 / 0.01**2, 1.0])          # finer than size_min one way: clamped to size_min
+    raw[5:9] = np.diag([1 / 0.05**2, 1 / 0.05**2])  # inside the bounds
+    raw[9:] = np.diag([1.0, 4.0])                   # coarser than size_max both ways: at size_max
+    M = clamp_sizing(raw, size_min, size_max, aspect_min=0.2)
+    got = sizing_at_bounds(mesh, M, size_min, size_max)
+    assert got["faces_at_size_min"] == 5 and got["faces_at_size_max"] == 7
+    sides = np.linalg.norm(mesh.vert_u[mesh.face_verts[:5]] - mesh.vert_u[np.roll(mesh.face_verts[:5], -1, 1)], axis=2)
+    assert got["edge_at_size_min_m"] == pytest.approx(np.median(sides))  # 2 of every 3 sides are 0.1 m
+    assert got["edge_at_size_min_m"] == pytest.approx(0.1)
+    none = sizing_at_bounds(mesh, M[5:9].repeat(4, axis=0), size_min, size_max)
+    assert none["faces_at_size_min"] == 0 and np.isnan(none["edge_at_size_min_m"])
+
+
+def test_the_frame_record_counts_faces_at_the_sizing_bounds():
+    sim = build_sim(ADAPTIVE, "scene=hanging_sheet", "scene.scales.small.resolution=2",
+                    "scene.scales.small.sizing.size_min=0.05")
+    rec = sim.advance_frame()
+    # a resting flat sheet asks for size_max everywhere; the record counts the input mesh's faces
+    assert rec["faces_at_size_max"] == 8 and rec["faces_at_size_min"] == 0
+    fixed = build_sim("scene=hanging_sheet", "scene.scales.small.resolution=2").advance_frame()
+    assert fixed["faces_at_size_min"] == 0 and np.isnan(fixed["edge_at_size_min_m"])

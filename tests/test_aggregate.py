@@ -50,7 +50,7 @@ IO_S = 0.5
 def write_run(folder: Path, scene: str, mode: str, faces, verts, sim_s, *, study="table1", variant=None,
               scale="small", status="completed", frames_requested=None, timestamp="2025-01-01T00:00:00+00:00",
               view=None, buckling=None, accuracy=None, accuracy_frames=None, extra_frames=None, camera_cuts=None,
-              summary_extra=None, scene_view=None) -> Path:
+              summary_extra=None, scene_view=None, seed=0, manifest=None) -> Path:
     """A run folder as experiments.run writes it (only what aggregation reads)."""
     folder.mkdir(parents=True)
     n = len(sim_s)
@@ -61,7 +61,7 @@ def write_run(folder: Path, scene: str, mode: str, faces, verts, sim_s, *, study
         mode_cfg["buckling"] = {"k": 10, "mode": "adaptive"} if buckling is None else (buckling or None)
     scene_cfg = {"name": scene, "params": {"frame_time": FRAME_TIME_S}, **({"view": scene_view} if scene_view else {})}
     cfg = {"scene": scene_cfg, "mode": mode_cfg, "scale": scale,
-           "frames": frames_requested or n, "seed": 0, "study": study, "variant": variant, "reference": False}
+           "frames": frames_requested or n, "seed": seed, "study": study, "variant": variant, "reference": False}
     if camera_cuts:
         cfg["camera"] = {"type": "cuts", "shots": [{"start": 0.0}] + [{"start": c} for c in camera_cuts]}
     (folder / "config.yaml").write_text(yaml.safe_dump(cfg))
@@ -72,7 +72,7 @@ def write_run(folder: Path, scene: str, mode: str, faces, verts, sim_s, *, study
     summary = {"status": status, "message": "", "frames_requested": frames_requested or n, "frames_completed": n,
                **(summary_extra or {})}
     (folder / "summary.json").write_text(json.dumps(summary))
-    (folder / "manifest.json").write_text(json.dumps({"timestamp_utc": timestamp}))
+    (folder / "manifest.json").write_text(json.dumps({"timestamp_utc": timestamp, **(manifest or {})}))
     if accuracy is not None:
         (folder / "accuracy.json").write_text(json.dumps(accuracy))
     if accuracy_frames is not None:
@@ -145,7 +145,62 @@ def test_without_an_adaptive_run_the_speedup_is_left_out_and_said(tmp_path):
     write_run(tmp_path / "a", "toy", "viewdep", [1, 2], [1, 2], [1.0, 1.0])
     t = table1(load_runs([tmp_path]).runs)
     assert len(t) == 1 and math.isnan(t["speedup"].iloc[0])
-    assert any("no unique adaptive run" in n for n in t.attrs["notes"])
+    assert any("no adaptive run" in n for n in t.attrs["notes"])
+
+
+def test_repeats_give_medians_ranges_and_per_seed_speedups(tmp_path):
+    """Three seeds per cell: statistics are medians of the per-run values, the time's range is the
+    per-run means' min-max, and the speed-up is the median of per-seed ratios."""
+    commit = {"git_commit": "a" * 40, "git_dirty": False}
+    adaptive = {0: [1.0, 3.0], 1: [2.0, 2.0], 2: [4.0, 4.0]}   # per-run means 2, 2, 4
+    viewdep = {0: [0.5, 0.5], 1: [1.0, 1.0], 2: [0.5, 1.5]}    # per-run means 0.5, 1, 1
+    for seed in range(3):
+        write_run(tmp_path / f"a{seed}", "toy", "adaptive", [10 * (seed + 1)] * 2, [5, 5], adaptive[seed],
+                  seed=seed, manifest=commit)
+        write_run(tmp_path / f"v{seed}", "toy", "viewdep", [seed + 1, seed + 3], [2, 2], viewdep[seed], seed=seed,
+                  manifest=commit)
+    t = table1(load_runs([tmp_path]).runs)
+    a, v = row(t, mode="adaptive"), row(t, mode="viewdep")
+    assert a["repeats"] == 3 and a["seeds"] == "0 1 2" and a["code"] == "a" * 12
+    assert a["time_mean_s"] == 2.0 and (a["time_mean_lo_s"], a["time_mean_hi_s"]) == (2.0, 4.0)
+    assert a["faces_mean"] == 20 and a["time_max_s"] == 3.0  # medians of (10, 20, 30) and of (3, 2, 4)
+    assert v["time_mean_s"] == 1.0 and (v["time_mean_lo_s"], v["time_mean_hi_s"]) == (0.5, 1.0)
+    assert v["faces_min"] == 2 and v["faces_max"] == 4  # medians of (1, 2, 3) and (3, 4, 5)
+    # per seed: 2 / 0.5 = 4, 2 / 1 = 2, 4 / 1 = 4
+    assert (v["speedup"], v["speedup_lo"], v["speedup_hi"]) == (4.0, 2.0, 4.0)
+    md = aggregate.table1_markdown(t)
+    assert "1.000 (0.500–1.000)" in md and "4.00× (2.00–4.00)" in md
+
+
+def test_a_row_whose_runs_differ_in_commit_or_frames_is_refused_and_named(tmp_path):
+    old, new = {"git_commit": "b" * 40}, {"git_commit": "c" * 40}
+    write_run(tmp_path / "a0", "toy", "adaptive", [4, 4], [3, 3], [1.0, 1.0], seed=0, manifest=old)
+    write_run(tmp_path / "a1", "toy", "adaptive", [4, 4], [3, 3], [1.0, 1.0], seed=1, manifest=new)
+    write_run(tmp_path / "v0", "toy", "viewdep", [2, 2], [1, 1], [0.5, 0.5], seed=0, manifest=old)
+    write_run(tmp_path / "v1", "toy", "viewdep", [2, 2, 2], [1, 1, 1], [0.5, 0.5, 0.5], seed=1, manifest=old)
+    write_run(tmp_path / "n0", "toy", "nonadaptive", [9, 9], [5, 5], [2.0, 2.0], seed=0, manifest=old)
+    t = table1(load_runs([tmp_path]).runs)
+    assert list(t["mode"]) == ["nonadaptive"]  # both other rows are refused, so no speed-up either
+    problems = "\n".join(t.attrs["problems"])
+    assert "toy/small/adaptive refused: its runs differ in commit (" + "b" * 12 in problems
+    assert "toy/small/viewdep refused: its runs differ in frames (2, 3)" in problems
+    assert "a0" in problems and "v1" in problems
+    # a dirty work tree is other code: the diff's hash is part of the label
+    assert aggregate.code_label({"git_commit": "d" * 40, "git_dirty": True, "git_diff_sha1": "e" * 40}) \
+        == "d" * 12 + "+diff:" + "e" * 8
+    # the paper_figures command writes the refusals into problems.txt
+    from paper_figures.__main__ import main as figures_main
+    out = tmp_path / "fig"
+    figures_main([str(tmp_path), "--out", str(out)])
+    assert "toy/small/viewdep refused" in (out / "problems.txt").read_text()
+
+
+def test_a_speedup_against_a_baseline_of_other_code_is_refused(tmp_path):
+    write_run(tmp_path / "a", "toy", "adaptive", [4], [3], [1.0], manifest={"git_commit": "1" * 40})
+    write_run(tmp_path / "v", "toy", "viewdep", [2], [1], [0.5], manifest={"git_commit": "2" * 40})
+    t = table1(load_runs([tmp_path]).runs)
+    assert len(t) == 2 and math.isnan(row(t, mode="viewdep")["speedup"])
+    assert any("speed-up refused" in p for p in t.attrs["problems"])
 
 
 # ---- broken folders --------------------------------------------------------------------------------

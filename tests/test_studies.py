@@ -24,10 +24,15 @@ EXPERIMENTS = config_choices("experiment")
 TINY = ["scene=sheet_on_sphere", "frames=2", "output.rerun=false", "output.progress=false"]
 
 
+REPEATS_SWEEP = "range(0,${repeats})"  # every preset's seed sweep: repeats=N runs each point with seeds 0 .. N-1
+
+
 def _sweep(experiment: str) -> dict:
+    """The preset's swept keys and values, but its seeds (REPEATS_SWEEP, checked on its own)."""
     preset = yaml.safe_load((ROOT / "conf" / "experiment" / f"{experiment}.yaml").read_text())
     params = preset["hydra"]["sweeper"]["params"]
-    return {k: [v.strip() for v in str(vals).split(",")] for k, vals in params.items()}
+    assert params.get("seed") == REPEATS_SWEEP, f"{experiment}: the seeds come from `repeats`"
+    return {k: [v.strip() for v in str(vals).split(",")] for k, vals in params.items() if k != "seed"}
 
 
 def _runs(experiment: str) -> list[list[str]]:
@@ -42,7 +47,28 @@ def test_presets_are_the_issue_s_studies():
     assert set(EXPERIMENTS) >= {"table1", "sweep_nu_out", "sweep_k", "sweep_T", "sweep_margin",
                                 "ablation_buckling", "ablation_anticipation", "accuracy"}
     assert _sweep("table1") == {"scene": ["karate", "solo_dancer", "multiple_dancers"],
-                                "+point": ["nonadaptive", "adaptive", "viewdep"]}
+                                "+point": ["nonadaptive", "adaptive", "viewdep", "viewdep_nofloor"]}
+
+
+@pytest.mark.parametrize("experiment", EXPERIMENTS)
+def test_repeats_sweep_the_seeds_one_run_at_a_time(experiment):
+    """`repeats=N` makes the sweeper run every point with seeds 0 .. N-1 (3 for Table 1, 1 for
+    the others by default), and the local launcher runs one run at a time."""
+    default = 3 if experiment == "table1" else 1
+    for extra, n in (((), default), (("repeats=5",), 5)):
+        cfg = compose_config(f"+experiment={experiment}", *extra, return_hydra_config=True)
+        assert cfg.repeats == n and cfg.hydra.sweeper.params.seed == f"range(0,{n})"
+        assert cfg.hydra.launcher.n_jobs == 1
+
+
+def test_table1_has_the_view_dependent_mode_without_the_contact_floor():
+    floor = compose_config("scene=solo_dancer", "+point=viewdep")
+    paper = compose_config("scene=solo_dancer", "+point=viewdep_nofloor")
+    assert floor.mode.view.contact_size == 0.2 and paper.mode.view.contact_size is None
+    assert paper.variant == "viewdep_nofloor" and paper.mode.name == "viewdep"
+    strip = ("contact_size", "variant")
+    assert {k: v for k, v in paper.mode.view.items() if k not in strip} == \
+        {k: v for k, v in floor.mode.view.items() if k not in strip}
 
 
 @pytest.mark.parametrize("experiment", EXPERIMENTS)
@@ -101,6 +127,7 @@ def test_joblib_multirun_with_study_callback_measures_and_aggregates(tmp_path):
     """The default launcher runs a 3-run study (reference, adaptive, viewdep) in 2 processes; its
     callback writes accuracy against the reference and the study's tables."""
     sweep = _multirun(tmp_path, "camera=sheet_half", "+point=reference,adaptive,viewdep", "study=tiny",
+                      "hydra.launcher.n_jobs=2",  # two at once: each with half of the cores
                       "output.states_every=1",  # a study that measures accuracy asks for the states
                       "+hydra.callbacks.study._target_=experiments.callbacks.StudyCallback")
     runs = _completed(sweep)
@@ -116,6 +143,8 @@ def test_joblib_multirun_with_study_callback_measures_and_aggregates(tmp_path):
     loaded = load_runs([sweep])
     assert len(loaded.runs) == 3 and not loaded.problems
     assert (sweep / "figures").is_dir() and any((sweep / "figures").iterdir())
+    threads = {json.loads((r / "manifest.json").read_text())["numba_threads"] for r in runs}
+    assert threads == {threads_per_run(os.cpu_count(), 2)}
 
 
 def test_submitit_local_launcher(tmp_path):
@@ -171,9 +200,10 @@ def test_a_preset_runs_as_a_multirun_and_its_callback_aggregates(tmp_path):
     assert sorted(c["mode"]["view"]["anticipation"] for c in cfgs if not c["reference"]) == [False, True]
     assert sum((r / "accuracy.json").exists() for r in runs) == 2
     assert any((sweep / "figures").iterdir())
-    # the launcher runs 2 at once (conf/cluster/local.yaml): each run had its share of the cores
+    # the launcher runs one at a time (conf/cluster/local.yaml): each run had every core
     threads = {json.loads((r / "manifest.json").read_text())["numba_threads"] for r in runs}
-    assert threads == {threads_per_run(os.cpu_count(), 2)}
+    assert threads == {threads_per_run(os.cpu_count(), 1)}
+    assert {c["seed"] for c in cfgs} == {0}
 
 
 def test_runs_at_once_share_the_cores():

@@ -35,7 +35,7 @@ from cloth.collision.selfcollision import resolve_self_collisions
 from cloth.collision.untangle import find_intersections
 from cloth.remeshing.popfilter import PopFilterParams, internal_forces, pop_filter
 from cloth.remeshing.remesh import RemeshParams, remesh
-from cloth.remeshing.sizing import SizingParams, face_to_vert_sizing, physics_face_sizing
+from cloth.remeshing.sizing import SizingParams, face_to_vert_sizing, physics_face_sizing, sizing_at_bounds
 
 INTERNAL_TERMS = ("membrane", "bending")
 # Crossing guard (scenes with self_collision): when a remesh made the cloth cross itself (more
@@ -186,9 +186,12 @@ class AdaptiveRemesher:
             return False
         mesh = sim.mesh
         t0 = time.perf_counter()
-        vert_M = face_to_vert_sizing(mesh, self.face_sizing(sim))
+        face_M = self.face_sizing(sim)
+        vert_M = face_to_vert_sizing(mesh, face_M)
         t1 = time.perf_counter()
         timings["sizing"] += t1 - t0
+        stats.update(sizing_at_bounds(mesh, face_M, self.sizing.size_min, self.sizing.size_max))
+        t1 = time.perf_counter()  # the count above is the record's bookkeeping, not remeshing
         initial = sim.frame == 0
         internal = [t for t in sim.terms if t.name in INTERNAL_TERMS]
         use_pop = self.pop is not None and not initial and bool(internal) and self.pop.iterations > 0

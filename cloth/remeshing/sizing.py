@@ -331,6 +331,30 @@ def physics_face_sizing(mesh: Mesh, params: SizingParams, obstacles=None) -> np.
     return combine_sizing(Ms, params)
 
 
+# Relative tolerance of "at a bound": clamp_sizing's eigen-decomposition returns the clamped
+# eigenvalues to round-off (~1e-15 relative); 1e-9 also absorbs the symmetrisation.
+BOUND_RTOL = 1e-9
+
+
+def sizing_at_bounds(mesh: Mesh, face_M: np.ndarray, size_min: float, size_max: float) -> dict:
+    """How much room the sizing field had: per face, whether its finest direction sits at
+    size_min (largest eigenvalue of M at 1/size_min^2 or above: the criteria asked for size_min or
+    finer) or at size_max (largest eigenvalue at 1/size_max^2 or below: the face is at the coarse
+    bound in every direction). Returns faces_at_size_min, faces_at_size_max and
+    edge_at_size_min_m, the median material edge length of the faces at size_min (NaN when none):
+    the resolution the clamp actually produced, which a fixed mesh of equal resolution uses."""
+    w_max = np.linalg.eigvalsh(0.5 * (face_M + np.swapaxes(face_M, 1, 2)))[:, -1]
+    at_min = w_max >= (1.0 - BOUND_RTOL) / size_min**2
+    at_max = w_max <= (1.0 + BOUND_RTOL) / size_max**2
+    edge = math.nan
+    if at_min.any():
+        u = mesh.vert_u[mesh.face_verts[at_min]]  # (n, 3, 2)
+        sides = np.linalg.norm(u - np.roll(u, -1, axis=1), axis=2)
+        edge = float(np.median(sides))
+    return {"faces_at_size_min": int(at_min.sum()), "faces_at_size_max": int(at_max.sum()),
+            "edge_at_size_min_m": edge}
+
+
 def face_to_vert_sizing(mesh: Mesh, face_M: np.ndarray) -> np.ndarray:
     """Area-weighted average of the sizing of the faces around each vert: (n_verts, 2, 2)."""
     w = mesh.face_area
