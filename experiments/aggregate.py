@@ -267,6 +267,8 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
     has none), frame_time_s, camera_cuts_s, status, frames, frames_requested, characters,
     faces/verts/time min/max/mean (time_*_s from sim_s), time_total_s, io_mean_s and wall_mean_s
     (I/O and the whole frame, beside the simulation time), time_<phase>_mean_s,
+    size_min_fraction_mean / size_max_fraction_mean (faces at a sizing bound over faces, mean over
+    the frames that remeshed) and edge_at_size_min_m (median over those frames; NaN without them),
     and accuracy.json's ACCURACY_KEYS plus accuracy_frames (NaN without accuracy).
     """
     path = Path(path)
@@ -321,6 +323,17 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
     for c in frames.columns:
         if c.startswith("time_") and c.endswith("_s"):
             row[f"{c[:-2]}_mean_s"] = float(frames[c].mean())
+    # room the sizing had (remeshing modes): the share of faces held at each bound, over the frames
+    # that remeshed, and the median realised edge of the faces at size_min (a fixed mesh of the
+    # same resolution uses it: iso-resolution)
+    remeshed = frames[frames["remeshed"] > 0] if "remeshed" in frames.columns else frames.iloc[0:0]
+    for bound in ("min", "max"):
+        col = f"faces_at_size_{bound}"
+        sized = remeshed["faces_sized"] if "faces_sized" in remeshed.columns else remeshed["faces"]
+        row[f"size_{bound}_fraction_mean"] = (float((remeshed[col] / sized).mean())
+                                              if col in remeshed.columns and len(remeshed) else math.nan)
+    row["edge_at_size_min_m"] = (float(remeshed["edge_at_size_min_m"].median())
+                                 if "edge_at_size_min_m" in remeshed.columns and len(remeshed) else math.nan)
 
     notes: list[str] = []
     acc_frames = None

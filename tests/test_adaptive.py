@@ -208,7 +208,7 @@ def test_sizing_at_bounds_counts_the_clamped_faces_and_their_realised_edges():
     raw[9:] = np.diag([1.0, 4.0])                   # coarser than size_max both ways: at size_max
     M = clamp_sizing(raw, size_min, size_max, aspect_min=0.2)
     got = sizing_at_bounds(mesh, M, size_min, size_max)
-    assert got["faces_at_size_min"] == 5 and got["faces_at_size_max"] == 7
+    assert got["faces_at_size_min"] == 5 and got["faces_at_size_max"] == 7 and got["faces_sized"] == 16
     sides = np.linalg.norm(mesh.vert_u[mesh.face_verts[:5]] - mesh.vert_u[np.roll(mesh.face_verts[:5], -1, 1)], axis=2)
     assert got["edge_at_size_min_m"] == pytest.approx(np.median(sides))  # 2 of every 3 sides are 0.1 m
     assert got["edge_at_size_min_m"] == pytest.approx(0.1)
@@ -221,6 +221,6 @@ def test_the_frame_record_counts_faces_at_the_sizing_bounds():
                     "scene.scales.small.sizing.size_min=0.05")
     rec = sim.advance_frame()
     # a resting flat sheet asks for size_max everywhere; the record counts the input mesh's faces
-    assert rec["faces_at_size_max"] == 8 and rec["faces_at_size_min"] == 0
+    assert rec["faces_at_size_max"] == 8 and rec["faces_at_size_min"] == 0 and rec["faces_sized"] == 8
     fixed = build_sim("scene=hanging_sheet", "scene.scales.small.resolution=2").advance_frame()
     assert fixed["faces_at_size_min"] == 0 and np.isnan(fixed["edge_at_size_min_m"])

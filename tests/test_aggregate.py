@@ -16,7 +16,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from experiments import aggregate
+from experiments import aggregate, tables
 from experiments.aggregate import RunFolderWarning, load_runs, table1
 
 PAPER_TIMINGS = Path(__file__).resolve().parents[2] / "shared" / "paper-timings"
@@ -170,6 +170,36 @@ def test_repeats_give_medians_ranges_and_per_seed_speedups(tmp_path):
     assert (v["speedup"], v["speedup_lo"], v["speedup_hi"]) == (4.0, 2.0, 4.0)
     md = aggregate.table1_markdown(t)
     assert "1.000 (0.500–1.000)" in md and "4.00× (2.00–4.00)" in md
+
+
+def test_the_runs_table_says_how_much_room_the_sizing_had(tmp_path):
+    extra = {"remeshed": [1, 0, 1], "faces_sized": [40, 0, 60], "faces_at_size_min": [10, 0, 30], "faces_at_size_max": [20, 0, 0],
+             "edge_at_size_min_m": [0.04, float("nan"), 0.05]}
+    write_run(tmp_path / "a", "toy", "adaptive", [40, 50, 60], [1, 1, 1], [1.0, 1.0, 1.0], extra_frames=extra)
+    write_run(tmp_path / "n", "toy", "nonadaptive", [40, 40, 40], [1, 1, 1], [1.0, 1.0, 1.0])
+    runs = load_runs([tmp_path]).runs.set_index("mode")
+    # frames 1 and 3 remeshed: (10/40 + 30/60) / 2, (20/40 + 0) / 2, median(0.04, 0.05)
+    assert runs.loc["adaptive", "size_min_fraction_mean"] == pytest.approx(0.375, abs=EXACT_TOL)
+    assert runs.loc["adaptive", "size_max_fraction_mean"] == pytest.approx(0.25, abs=EXACT_TOL)
+    assert runs.loc["adaptive", "edge_at_size_min_m"] == pytest.approx(0.045, abs=EXACT_TOL)
+    assert math.isnan(runs.loc["nonadaptive", "size_min_fraction_mean"])
+
+
+def test_face_ratios_are_over_the_adaptive_mean_beside_the_papers(tmp_path):
+    write_run(tmp_path / "n", "solo_dancer", "nonadaptive", [300, 300], [1, 1], [1.0, 1.0])
+    write_run(tmp_path / "a", "solo_dancer", "adaptive", [100, 140], [1, 1], [1.0, 1.0])
+    write_run(tmp_path / "v", "solo_dancer", "viewdep", [30, 90], [1, 1], [1.0, 1.0])
+    write_run(tmp_path / "w", "solo_dancer", "viewdep", [40, 80], [1, 1], [1.0, 1.0], variant="viewdep_nofloor")
+    t = table1(load_runs([tmp_path]).runs)
+    r = tables.face_ratios(t)
+    r = r.set_index(r["variant"].where(r["variant"] != "", r["mode"]))
+    assert r.loc["nonadaptive", "faces_ratio"] == 2.5 and r.loc["viewdep", "faces_ratio"] == 0.5
+    assert r.loc["viewdep_nofloor", "faces_ratio"] == 0.5
+    # the paper's solo dancer: 43,710 / 18,041 and 9,638 / 18,041 (Table 1)
+    assert r.loc["nonadaptive", "faces_ratio_paper"] == pytest.approx(43710 / 18041, abs=EXACT_TOL)
+    assert r.loc["viewdep_nofloor", "faces_ratio_paper"] == pytest.approx(9638 / 18041, abs=EXACT_TOL)
+    md = tables.table1_markdown(t)
+    assert "2.50 | 2.42" in md and "View-dependent (viewdep_nofloor)" in md
 
 
 def test_a_row_whose_runs_differ_in_commit_or_frames_is_refused_and_named(tmp_path):

@@ -18,7 +18,7 @@ REMESH_RECORD = {"remeshed": 0, "remesh_splits": 0, "remesh_collapses": 0, "reme
                  "pop_energy_before_j": float("nan"), "pop_energy_after_j": float("nan"),
                  "pop_iterations": 0, "remesh_ccd_hits": 0, "remesh_guard_rounds": 0, "remesh_frozen_nodes": 0,
                  # the sizing field at its bounds (cloth.remeshing.sizing.sizing_at_bounds)
-                 "faces_at_size_min": 0, "faces_at_size_max": 0, "edge_at_size_min_m": float("nan")}
+                 "faces_sized": 0, "faces_at_size_min": 0, "faces_at_size_max": 0, "edge_at_size_min_m": float("nan")}
 
 # The view-dependent sizing (NaN in the other modes).
 VIEW_RECORD = {"view_factor_min": float("nan"), "view_factor_mean": float("nan"), "view_factor_max": float("nan"),

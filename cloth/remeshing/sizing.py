@@ -340,7 +340,8 @@ def sizing_at_bounds(mesh: Mesh, face_M: np.ndarray, size_min: float, size_max: 
     """How much room the sizing field had: per face, whether its finest direction sits at
     size_min (largest eigenvalue of M at 1/size_min^2 or above: the criteria asked for size_min or
     finer) or at size_max (largest eigenvalue at 1/size_max^2 or below: the face is at the coarse
-    bound in every direction). Returns faces_at_size_min, faces_at_size_max and
+    bound in every direction). Returns faces_sized (the faces of the mesh the field was
+    evaluated on, before the remesh), faces_at_size_min, faces_at_size_max and
     edge_at_size_min_m, the median material edge length of the faces at size_min (NaN when none):
     the resolution the clamp actually produced, which a fixed mesh of equal resolution uses."""
     w_max = np.linalg.eigvalsh(0.5 * (face_M + np.swapaxes(face_M, 1, 2)))[:, -1]
@@ -351,8 +352,8 @@ def sizing_at_bounds(mesh: Mesh, face_M: np.ndarray, size_min: float, size_max: 
         u = mesh.vert_u[mesh.face_verts[at_min]]  # (n, 3, 2)
         sides = np.linalg.norm(u - np.roll(u, -1, axis=1), axis=2)
         edge = float(np.median(sides))
-    return {"faces_at_size_min": int(at_min.sum()), "faces_at_size_max": int(at_max.sum()),
-            "edge_at_size_min_m": edge}
+    return {"faces_sized": int(len(face_M)), "faces_at_size_min": int(at_min.sum()),
+            "faces_at_size_max": int(at_max.sum()), "edge_at_size_min_m": edge}
 
 
 def face_to_vert_sizing(mesh: Mesh, face_M: np.ndarray) -> np.ndarray:

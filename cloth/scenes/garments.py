@@ -6,7 +6,8 @@ or collar are pinned to a joint of the mannequin (a :class:`cloth.core.scene.Han
 that joint's, :class:`JointMotion`).
 
 * `circle_skirt`: an annulus (inner radius = waist, width = length) that starts as a flat disc
-  around the waist, falls and drapes. No seam.
+  around the waist, falls and drapes. No seam. Meshed with near-uniform edges
+  (`uniform_annulus_mesh`: more nodes on the longer rings further out).
 * `tube_skirt`: a rectangle of width 2 pi r rolled into a vertical tube around the hips, its
   two side edges joined by a seam (every seam node has two verts), pinned at the waist.
   Two of them, one over the other, make the layered outfit of the karate scene.
@@ -97,6 +98,67 @@ def annulus_mesh(inner_radius: float, width: float, n_around: int, n_across: int
                 vert_node=np.arange(n, dtype=np.int32), face_verts=faces)
 
 
+# Gap between the rings of `uniform_annulus_mesh`, in units of its edge length: 3 / pi, so that
+# each ring is 2 pi x gap = 6 edges longer than the one inside it (about 6 more nodes, as in the
+# rings of a hexagonal disc). Not the equilateral sqrt(3) / 2: rings with different node counts
+# line up somewhere, and there the strip between them has a right triangle with legs the gap and
+# a segment, whose hypotenuse over its shorter leg is sqrt(1 + (edge / gap)^2): 1.53 with the
+# equilateral gap, 1.45 with this one. Where the rings are staggered the triangles have edges
+# 1, 1.08, 1.08 x edge: near-equilateral.
+RING_GAP = 3.0 / np.pi
+
+
+def _ring_strip(n_in: int, n_out: int, first_in: int, first_out: int) -> np.ndarray:
+    """(n_in + n_out, 3) faces, counter-clockwise seen from +z, of the strip between an inner ring
+    of n_in nodes (first_in + k at angle 2 pi k / n_in) and a larger outer ring of n_out nodes
+    (first_out + k at angle 2 pi k / n_out). One face per segment of either ring, the segments
+    taken in the order of their mid-angles: a face on an inner segment has its apex at the
+    current outer node, one on an outer segment at the current inner node. This walk always
+    takes the quad's shorter diagonal (by angle) and keeps the two rings in step; it starts and
+    ends at the edge between the nodes at angle 0."""
+    mid = np.concatenate([(np.arange(n_in) + 0.5) / n_in, (np.arange(n_out) + 0.5) / n_out])  # turns
+    outer = np.concatenate([np.zeros(n_in, dtype=bool), np.ones(n_out, dtype=bool)])[np.argsort(mid, kind="stable")]
+    j = (np.cumsum(~outer) - ~outer) % n_in  # the current inner node: inner segments done so far
+    k = (np.cumsum(outer) - outer) % n_out
+    a, a_next = first_in + j, first_in + (j + 1) % n_in
+    b, b_next = first_out + k, first_out + (k + 1) % n_out
+    return np.where(outer[:, None], np.column_stack([a, b, b_next]), np.column_stack([a, b, a_next]))
+
+
+def uniform_annulus_mesh(inner_radius: float, width: float, edge: float, center=(0.0, 0.0, 0.0),
+                         cell_aspect: float = 1.0) -> Mesh:
+    """A flat annulus in the plane z = center[2] whose edges are all about `edge` metres long:
+    material coordinates (r cos t, r sin t), world positions the same around `center`.
+
+    Rings of nodes at radii inner_radius + i width / n_rings, i = 0 .. n_rings, the gap between
+    them (RING_GAP x edge x cell_aspect; rounded so that the last ring is the outer edge) and
+    their nodes round(2 pi r / edge) (at least 3) at angles 2 pi k / n. Nodes are numbered ring by
+    ring from the inner one, so nodes 0 .. n_0 - 1 are the inner ring's, in order from angle 0.
+    Consecutive rings are joined by `_ring_strip`. With cell_aspect = 1 and a few rings (width of
+    several edges), the longest edge over the shortest is below 1.5 and the smallest angle above
+    40 degrees; cell_aspect > 1 makes the rings that many times further apart (thin triangles,
+    long across and short around).
+    """
+    if inner_radius <= 0 or width <= 0:
+        raise MeshError(f"annulus radii must be > 0 m, got inner {inner_radius}, width {width}")
+    if not edge > 0:
+        raise MeshError(f"annulus edge length must be > 0 m, got {edge}")
+    if not cell_aspect > 0:
+        raise MeshError(f"annulus cell_aspect must be > 0, got {cell_aspect}")
+    n_rings = max(1, int(round(width / (RING_GAP * edge * cell_aspect))))
+    r = inner_radius + width * np.arange(n_rings + 1) / n_rings
+    n = np.maximum(3, np.round(2 * np.pi * r / edge).astype(np.int64))
+    first = np.concatenate([[0], np.cumsum(n)])
+    ring = np.repeat(np.arange(n_rings + 1), n)
+    t = 2 * np.pi * (np.arange(first[-1]) - first[ring]) / n[ring]
+    u = np.column_stack([r[ring] * np.cos(t), r[ring] * np.sin(t)])
+    faces = np.concatenate([_ring_strip(n[i], n[i + 1], first[i], first[i + 1]) for i in range(n_rings)])
+    x = np.column_stack([u, np.zeros(len(u))]) + np.asarray(center, float)
+    m = len(u)
+    return Mesh(node_x=x, node_v=np.zeros((m, 3)), node_pinned=np.zeros(m, dtype=bool), vert_u=u,
+                vert_node=np.arange(m, dtype=np.int32), face_verts=faces.astype(np.int32))
+
+
 def tube_mesh(radius: float, length: float, n_around: int, n_along: int, top_center=(0.0, 0.0, 0.0),
               seam_angle: float = -np.pi / 2) -> Mesh:
     """A vertical tube of `radius` hanging `length` below `top_center`, rolled from a flat
@@ -130,16 +192,21 @@ def circle_skirt(body: Mannequin, *, waist_radius: float = 0.18, length: float =
                  waist_joint: str = "abdomen", waist_height: float = 0.06, cell_aspect: float = 1.0) -> Garment:
     """A circle skirt around `body`'s waist: a flat disc (annulus) at the waist at t = 0.
 
-    `resolution` segments around; the number across keeps faces near-equilateral at mid-length,
-    or, with `cell_aspect` > 1, makes the cells that many times longer across than around (thin
-    input triangles, the stability suite's thin garment). The waistband ring sits `waist_height`
-    above the `waist_joint` and is pinned to it.
+    `resolution` segments around the waist, which sets the edge length 2 pi waist_radius /
+    resolution of the whole skirt: the rings further out have more nodes (`uniform_annulus_mesh`),
+    so the edges are near-uniform (the longest over the shortest below 1.5 when the skirt is
+    several edges long) and the faces near-equilateral. With `cell_aspect` > 1 the rings are that
+    many times further apart, making cells that many times longer across than around (thin
+    input triangles, the stability suite's thin garment). The waistband ring (nodes 0 ..
+    resolution - 1) sits `waist_height` above the `waist_joint` and is pinned to it.
     """
     if not cell_aspect >= 1:
         raise MeshError(f"circle skirt cell_aspect must be >= 1, got {cell_aspect}")
     n_around = int(resolution)
-    n_across = _segments_across(length, 2 * np.pi * (waist_radius + length / 2) * cell_aspect, n_around)
-    mesh = annulus_mesh(waist_radius, length, n_around, n_across, _joint_center(body, waist_joint, waist_height))
+    if n_around < 3:
+        raise MeshError(f"circle skirt needs >= 3 segments around the waist, got {resolution}")
+    mesh = uniform_annulus_mesh(waist_radius, length, 2 * np.pi * waist_radius / n_around,
+                                _joint_center(body, waist_joint, waist_height), cell_aspect=cell_aspect)
     return Garment("circle_skirt", mesh, np.arange(n_around), JointMotion(body, waist_joint))
 
 
