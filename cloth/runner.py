@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -88,7 +89,8 @@ def summarize(frames: pd.DataFrame) -> dict:
 
 # Per-frame columns that add up over the characters of a crowd (everything else is per character).
 CROWD_SUM_COLUMNS = ("faces", "verts", "nodes", "sim_s", "wall_s", "solver_iterations", "contacts", "faces_in_view",
-                     "faces_back_facing", "faces_out_of_frame", "faces_compensated", "kinetic_energy_j")
+                     "faces_back_facing", "faces_out_of_frame", "faces_compensated", "kinetic_energy_j", "remeshed",
+                     "faces_sized", "faces_at_size_min", "faces_at_size_max")
 
 
 def combine_crowd(character_dirs: list, out_dir: Path) -> tuple[pd.DataFrame, dict]:
@@ -96,7 +98,8 @@ def combine_crowd(character_dirs: list, out_dir: Path) -> tuple[pd.DataFrame, di
 
     frames.parquet: per frame, the sum over the characters of CROWD_SUM_COLUMNS and of every
     time_*_s column, the largest max_speed_m_s and the smallest min_face_quality, over the frames
-    that every character completed. summary.json: the Table 1 statistics of those sums, the
+    that every character completed (and the median over the characters of edge_at_size_min_m).
+    summary.json: the Table 1 statistics of those sums, the
     worst status of the characters, and each character's own summary.
     """
     out_dir = Path(out_dir)
@@ -116,6 +119,11 @@ def combine_crowd(character_dirs: list, out_dir: Path) -> tuple[pd.DataFrame, di
         rows["sim_time_s"] = frames[0]["sim_time_s"].iloc[:n].to_numpy()
         rows["max_speed_m_s"] = np.max([f["max_speed_m_s"].iloc[:n].to_numpy() for f in frames], axis=0)
         rows["min_face_quality"] = np.min([f["min_face_quality"].iloc[:n].to_numpy() for f in frames], axis=0)
+        if "edge_at_size_min_m" in frames[0].columns:  # the characters' median realised edges: their median
+            edges = np.array([f["edge_at_size_min_m"].iloc[:n].to_numpy(dtype=float) for f in frames])
+            with np.errstate(all="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # a frame where no character remeshed
+                rows["edge_at_size_min_m"] = np.nanmedian(edges, axis=0)
         rows["characters"] = len(frames)
         write_parquet_atomic(out_dir / "frames.parquet", rows)
     order = ("completed", "interrupted", "diverged", "failed", "missing")

@@ -450,3 +450,24 @@ def test_paper_figures_write_every_expected_file(tmp_path, capsys):
     p = pd.read_csv(out / "pareto.csv", keep_default_na=False)
     front = sorted(p[p["on_front"]]["run"])
     assert front == sorted(["sweep/1_vd", "sweep/2_vd", "sweep/0_ad"]), front
+
+
+def test_a_crowds_records_sum_the_sizing_bounds_of_its_characters(tmp_path):
+    from cloth.core.records import PHASES
+    from cloth.runner import combine_crowd
+
+    dirs = []
+    for i, (at_min, edge) in enumerate(((10, 0.04), (30, 0.06))):
+        d = tmp_path / f"dancer_{i:02d}"
+        d.mkdir()
+        pd.DataFrame({"frame": [1], "sim_time_s": [0.04], "faces": [100], "verts": [60], "nodes": [60], "sim_s": [1.0], "wall_s": [1.1], "solver_iterations": [7],
+                      "max_speed_m_s": [1.0], "min_face_quality": [0.5], "remeshed": [1], "faces_sized": [100],
+                      "faces_at_size_min": [at_min], "faces_at_size_max": [5],
+                      "edge_at_size_min_m": [edge], **{f"time_{p}_s": [0.1] for p in PHASES}}
+                     ).to_parquet(d / "frames.parquet", index=False)
+        (d / "summary.json").write_text(json.dumps({"status": "completed"}))
+        dirs.append(d)
+    rows, _ = combine_crowd(dirs, tmp_path)
+    r = rows.iloc[0]
+    assert (r["faces_sized"], r["faces_at_size_min"], r["faces_at_size_max"]) == (200, 40, 10)
+    assert r["edge_at_size_min_m"] == pytest.approx(0.05, abs=EXACT_TOL)
