@@ -22,7 +22,8 @@ Each case is a scene and mode with a few overrides:
   at scale=small, 96 at scale=paper), where a dense pile once diverged (cloth.physics.membrane);
 - thin_triangles: layered sheets made of very thin input triangles (cells 12x longer than wide);
 - thin_garment: the dancer's circle skirt made of very thin input triangles (cells 12x longer
-  across than around: one ring of 0.55 m x 5 cm cells at scale=small), adaptive, with self-collision.
+  across than around: one ring of 0.55 m x 3.7 cm cells at scale=small), adaptive, with
+  self-collision.
 """
 
 from __future__ import annotations

@@ -173,8 +173,8 @@ def test_repeats_give_medians_ranges_and_per_seed_speedups(tmp_path):
 
 
 def test_the_runs_table_says_how_much_room_the_sizing_had(tmp_path):
-    extra = {"remeshed": [1, 0, 1], "faces_sized": [40, 0, 60], "faces_at_size_min": [10, 0, 30], "faces_at_size_max": [20, 0, 0],
-             "edge_at_size_min_m": [0.04, float("nan"), 0.05]}
+    extra = {"remeshed": [1, 0, 1], "faces_sized": [40, 0, 60], "faces_at_size_min": [10, 0, 30],
+             "faces_at_size_max": [20, 0, 0], "edge_at_size_min_m": [0.04, float("nan"), 0.05]}
     write_run(tmp_path / "a", "toy", "adaptive", [40, 50, 60], [1, 1, 1], [1.0, 1.0, 1.0], extra_frames=extra)
     write_run(tmp_path / "n", "toy", "nonadaptive", [40, 40, 40], [1, 1, 1], [1.0, 1.0, 1.0])
     runs = load_runs([tmp_path]).runs.set_index("mode")
@@ -460,7 +460,8 @@ def test_a_crowds_records_sum_the_sizing_bounds_of_its_characters(tmp_path):
     for i, (at_min, edge) in enumerate(((10, 0.04), (30, 0.06))):
         d = tmp_path / f"dancer_{i:02d}"
         d.mkdir()
-        pd.DataFrame({"frame": [1], "sim_time_s": [0.04], "faces": [100], "verts": [60], "nodes": [60], "sim_s": [1.0], "wall_s": [1.1], "solver_iterations": [7],
+        pd.DataFrame({"frame": [1], "sim_time_s": [0.04], "faces": [100], "verts": [60], "nodes": [60], "sim_s": [1.0],
+                      "wall_s": [1.1], "solver_iterations": [7],
                       "max_speed_m_s": [1.0], "min_face_quality": [0.5], "remeshed": [1], "faces_sized": [100],
                       "faces_at_size_min": [at_min], "faces_at_size_max": [5],
                       "edge_at_size_min_m": [edge], **{f"time_{p}_s": [0.1] for p in PHASES}}

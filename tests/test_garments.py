@@ -4,7 +4,9 @@ out of the body at the end of every step, karate keeps its seams through adaptiv
 a crowd's records are the sums of its characters' records, each the same as running it alone.
 Every dancer of the crowd starts at rest (its phase delays its motion). A procedural garment
 written as OBJ and read back as an OBJ garment is the same garment, pinned the same way, and
-solo_dancer runs with it; a missing or bad garment file is a config error naming file and key."""
+solo_dancer runs with it; a missing or bad garment file is a config error naming file and key.
+The circle skirt is meshed with near-uniform edges: a manifold annulus pinned along its inner
+boundary loop, of the annulus's area, its longest edge at most 1.5 times its shortest."""
 
 import json
 
@@ -26,6 +28,7 @@ from cloth.scenes.garments import (
     obj_garment,
     tube_mesh,
     tube_skirt,
+    uniform_annulus_mesh,
 )
 from cloth.scenes.registry import crowd_placement
 from experiments.build import ConfigError, build_simulation
@@ -41,6 +44,22 @@ OBJ_ROUNDTRIP = 1e-12
 # As in test_character: between samples 1 ms apart the capsule velocities change by at most
 # max acceleration (< 200 m/s^2 in the dance at speed 1) x 1 ms; a jump would be of order m/s.
 MAX_DV_PER_MS = 0.2
+# The circle skirt's rings have more nodes further out, so its edges are near-uniform. Two rings
+# line up somewhere (their node counts differ), and there the strip between them has a right
+# triangle whose legs are the ring gap (3/pi edge) and a segment (an edge): its hypotenuse is
+# sqrt(1 + (pi/3)^2) = 1.45 times its shorter leg, and rounding the node count of each ring and
+# the number of rings moves that by a few percent. (The old layout, as many nodes on every ring,
+# had 4 times longer edges at the hem than at the waist.)
+EDGE_RATIO_MAX = 1.5
+# The smallest angle of that right triangle is atan(3/pi) = 43.7 degrees (staggered rings give
+# 55 to 62 degrees); the same rounding moves it by a degree or two.
+MIN_ANGLE_DEG = 40.0
+# A regular n-gon inscribed in a circle of radius R misses pi R^2 - n R^2 sin(2 pi / n) / 2 <=
+# (2 pi)^3 R^2 / (12 n^2) = pi s^2 / 6 of its area, s = 2 pi R / n its arc step (sin x >= x - x^3/6).
+# The meshed annulus is the outer polygon minus the inner one, so it is off by at most the larger
+# of the two: POLYGON_AREA_DEFICIT x s^2, s the longer of the two arc steps.
+POLYGON_AREA_DEFICIT = np.pi / 6
+SKIRT_RESOLUTIONS = (16, 32, 56)  # segments around the waist; 56 is scale=small's solo dancer
 
 
 def _world_face_edge_lengths(mesh):
@@ -49,6 +68,7 @@ def _world_face_edge_lengths(mesh):
 
 
 @pytest.mark.parametrize("make", [lambda: annulus_mesh(0.2, 0.5, 24, 5, (0, 0, 1)),
+                                  lambda: uniform_annulus_mesh(0.2, 0.5, 0.05, (0, 0, 1)),
                                   lambda: tube_mesh(0.25, 0.6, 20, 7, (0, 0, 1.2))])
 def test_patterns_start_isometric_to_their_material(make):
     mesh = make()
@@ -64,6 +84,78 @@ def test_patterns_start_isometric_to_their_material(make):
         chord = np.hypot(2 * r * np.sin(du / (2 * r)), dv)
         assert np.allclose(world, chord, atol=1e-12)
     assert np.all(mesh.face_area > 0)
+
+
+def _angles_deg(mesh):
+    """(F, 3) material-space angles of the faces, degrees."""
+    u = mesh.vert_u[mesh.face_verts]
+    a, b = np.roll(u, -1, axis=1) - u, np.roll(u, -2, axis=1) - u
+    cos = np.sum(a * b, axis=2) / (np.linalg.norm(a, axis=2) * np.linalg.norm(b, axis=2))
+    return np.degrees(np.arccos(np.clip(cos, -1, 1)))
+
+
+@pytest.mark.parametrize("resolution", SKIRT_RESOLUTIONS)
+def test_circle_skirt_edges_are_near_uniform(resolution):
+    mesh = circle_skirt(Mannequin(Dance()), resolution=resolution).mesh
+    edges = material_edge_lengths(mesh)
+    assert edges.max() / edges.min() <= EDGE_RATIO_MAX
+    waist_segment = 2 * 0.18 * np.sin(np.pi / resolution)  # the waist keeps `resolution` segments
+    assert edges.min() < waist_segment < edges.max()
+    assert _angles_deg(mesh).min() >= MIN_ANGLE_DEG
+
+
+@pytest.mark.parametrize("resolution, cell_aspect", [(8, 1.0), *((r, 1.0) for r in SKIRT_RESOLUTIONS), (56, 12.0)])
+def test_circle_skirt_is_a_manifold_annulus_pinned_along_its_inner_loop(resolution, cell_aspect):
+    waist, length = 0.18, 0.55
+    skirt = circle_skirt(Mannequin(Dance()), resolution=resolution, cell_aspect=cell_aspect)
+    mesh = skirt.mesh  # a Mesh: edges shared by at most two faces, which traverse them opposite ways
+    assert mesh.n_nodes - mesh.n_edges + mesh.n_faces == 0  # Euler characteristic of an annulus
+    boundary = mesh.edge_nodes[mesh.edge_faces[:, 1] < 0]
+    on_boundary = np.bincount(boundary.ravel(), minlength=mesh.n_nodes)
+    assert set(on_boundary[mesh.node_boundary]) == {2}  # two boundary edges at each boundary node: simple loops
+    loops = boundary_loops(mesh)
+    assert len(loops) == 2
+    radius = np.linalg.norm(mesh.vert_u, axis=1)  # one vert per node, vert i of node i
+    inner, outer = sorted(loops, key=lambda nodes: radius[nodes].mean())
+    assert np.array_equal(inner, np.arange(resolution)) and np.array_equal(np.sort(skirt.pinned), inner)
+    assert np.allclose(radius[inner], waist, atol=ROUNDOFF)
+    assert np.allclose(radius[outer], waist + length, atol=ROUNDOFF)
+    angle = np.arctan2(mesh.vert_u[inner, 1], mesh.vert_u[inner, 0]) % (2 * np.pi)
+    assert np.allclose(angle, 2 * np.pi * np.arange(resolution) / resolution, atol=ROUNDOFF)  # in order
+    assert np.all(mesh.face_area > 0)  # counter-clockwise in material space
+    # flat at t = 0 with its normals up (+z), as annulus_mesh's
+    assert np.allclose(mesh.world_face_normals(), [0, 0, 1], atol=ROUNDOFF)
+    assert np.allclose(annulus_mesh(waist, length, resolution, 4).world_face_normals(), [0, 0, 1], atol=ROUNDOFF)
+
+
+@pytest.mark.parametrize("resolution", SKIRT_RESOLUTIONS)
+def test_circle_skirt_has_the_area_of_its_annulus(resolution):
+    waist, length = 0.18, 0.55
+    mesh = circle_skirt(Mannequin(Dance()), resolution=resolution).mesh
+    area = mesh.face_area.sum()
+    inner, outer = sorted(boundary_loops(mesh), key=len)
+    polygon = [n * r**2 * np.sin(2 * np.pi / n) / 2 for n, r in ((len(inner), waist), (len(outer), waist + length))]
+    assert area == pytest.approx(polygon[1] - polygon[0], rel=ROUNDOFF)  # the strips tile the space between
+    step = max(2 * np.pi * waist / len(inner), 2 * np.pi * (waist + length) / len(outer))
+    assert abs(area - np.pi * ((waist + length) ** 2 - waist**2)) <= POLYGON_AREA_DEFICIT * step**2
+
+
+def test_circle_skirt_cell_aspect_spaces_its_rings():
+    body, waist, length, resolution = Mannequin(Dance()), 0.18, 0.55, 56
+    for aspect in (1.0, 3.0, 12.0):
+        mesh = circle_skirt(body, resolution=resolution, cell_aspect=aspect).mesh
+        radii = np.unique(np.round(np.linalg.norm(mesh.vert_u, axis=1), 9))
+        gap = np.diff(radii)
+        assert np.allclose(gap, gap[0]) and radii[[0, -1]] == pytest.approx([waist, waist + length])
+        # about cell_aspect x 3/pi x the edge apart; the ring count is rounded to fit the length
+        expected = aspect * 3 / np.pi * 2 * np.pi * waist / resolution
+        assert abs(gap[0] / expected - 1) <= 0.5 / len(gap) + ROUNDOFF
+    with pytest.raises(MeshError, match="cell_aspect"):
+        circle_skirt(body, cell_aspect=0.5)
+    with pytest.raises(MeshError, match="segments around"):
+        circle_skirt(body, resolution=2)
+    with pytest.raises(MeshError, match="edge"):
+        uniform_annulus_mesh(0.2, 0.5, 0.0)
 
 
 def test_tube_seam_joins_the_side_edges():
@@ -293,11 +385,17 @@ def test_a_garment_written_as_obj_reads_back_as_the_same_obj_garment(tmp_path, b
     save_obj(tmp_path / "garment_cm.obj", cm)
     _same_garment(procedural, obj_garment(body, tmp_path / "garment_cm.obj", scale=0.01, offset=shift,
                                           uv_scale=0.1, joint=joint))
-    # pin_distance just over the distance between rings adds the next ring to the pins
-    free = np.setdiff1d(np.arange(loaded.mesh.n_nodes), loaded.pinned)
-    ring_gap = cKDTree(loaded.mesh.node_x[loaded.pinned]).query(loaded.mesh.node_x[free])[0].min()
-    wider = obj_garment(body, tmp_path / "garment.obj", joint=joint, pin_distance=1.01 * ring_gap)
-    assert np.all(np.isin(loaded.pinned, wider.pinned)) and len(wider.pinned) == 2 * len(loaded.pinned)
+    # pin_distance just over the distance to the farthest node of the next ring (the nodes that
+    # share an edge with the pins; on the circle skirt it has more nodes than the waistband, not
+    # all straight out from one) adds exactly that ring to the pins
+    edges = loaded.mesh.edge_nodes
+    on_pin = np.isin(edges, loaded.pinned)
+    next_ring = np.setdiff1d(edges[on_pin[:, ::-1]], loaded.pinned)  # the other end of an edge from a pin
+    reach = cKDTree(loaded.mesh.node_x[loaded.pinned]).query(loaded.mesh.node_x[next_ring])[0].max()
+    wider = obj_garment(body, tmp_path / "garment.obj", joint=joint, pin_distance=1.01 * reach)
+    assert np.array_equal(wider.pinned, np.union1d(loaded.pinned, next_ring))
+    if procedural.name == "tube_skirt":  # as many nodes on every ring
+        assert len(wider.pinned) == 2 * len(loaded.pinned)
 
 
 def test_solo_dancer_runs_with_an_obj_garment_pinned_to_the_body(tmp_path):
@@ -343,3 +441,15 @@ def test_obj_garment_config_errors_name_the_file_and_the_key(tmp_path):
         build_simulation(compose_config("scene=solo_dancer", "scene.params.garment=cape"))
     with pytest.raises(ConfigError, match="garment_obj .* only read with garment=obj"):
         build_simulation(compose_config("scene=solo_dancer", f"scene.params.garment_obj={skirt}"))
+
+
+@pytest.mark.parametrize("scene", ["solo_dancer", "karate", "multiple_dancers"])
+@pytest.mark.parametrize("scale", ["small", "paper"])
+def test_fixed_garments_of_the_presets_have_near_uniform_edges(scene, scale):
+    """The nonadaptive presets and their references (issue: longest over shortest edge <= 1.5
+    across the garment; karate's two skirts together)."""
+    for reference in ("false", "true"):
+        cfg = compose_config(f"scene={scene}", f"scale={scale}", f"reference={reference}")
+        mesh = build_simulation(cfg, character=0 if scene == "multiple_dancers" else None)[0].mesh
+        edges = material_edge_lengths(mesh)
+        assert edges.max() / edges.min() <= EDGE_RATIO_MAX, (scene, scale, reference)

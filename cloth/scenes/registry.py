@@ -361,8 +361,10 @@ def karate(material: Material, *, resolution: int = 48, inner_radius: float = 0.
                      phase=phase)
     obstacle = _body_obstacle(name, body, body_kind, body_segments)
     n = max(int(resolution), 3)
+    # the overskirt has proportionally more segments around: both skirts have the same edge length
+    n_outer = max(round(n * outer_radius / inner_radius), 3)
     garments = [tube_skirt(body, waist_radius=inner_radius, length=inner_length, resolution=n, waist_height=0.06),
-                tube_skirt(body, waist_radius=outer_radius, length=outer_length, resolution=n,
+                tube_skirt(body, waist_radius=outer_radius, length=outer_length, resolution=n_outer,
                            waist_height=outer_waist_height)]
     notes = [] if "self_collision" in effects else [NO_SELF_COLLISION_NOTE]
     return _character_scene(name, material, body, garments, thickness=thickness, friction=friction,
