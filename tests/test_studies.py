@@ -178,8 +178,16 @@ def test_main_job_warms_the_kernel_cache_before_any_study(tmp_path, monkeypatch)
     rc = paper.main(["--out", str(tmp_path), "--studies", "table1", "accuracy"])
     assert rc == 1
     assert calls[0][:3] == paper.WARMUP[:3] and calls[0][-1] == f"hydra.run.dir={tmp_path / 'warmup'}"
-    assert "+experiment=table1" in calls[1] and "+experiment=accuracy" in calls[2]
-    assert calls[3][2] == "paper_figures"
+    # table1 in two parts: the single characters with 3 repeats, the crowd once, 2 characters at a time
+    assert "+experiment=table1" in calls[1] and "hydra.sweeper.params.scene='karate,solo_dancer'" in calls[1]
+    assert "repeats=3" in calls[1] and f"hydra.sweep.dir={tmp_path / 'table1'}" in calls[1]
+    assert "+experiment=table1" in calls[2] and "hydra.sweeper.params.scene='multiple_dancers'" in calls[2]
+    assert "repeats=1" in calls[2] and f"hydra.sweep.dir={tmp_path / 'table1_crowd'}" in calls[2]
+    assert "+experiment=accuracy" in calls[3] and "hydra.launcher.n_jobs=1" in calls[3]
+    assert calls[4][2] == "paper_figures"
+    for part in (calls[1], calls[2]):  # each part composes, and sweeps what it says
+        cfg = compose_config(*[a for a in part[4:] if not a.startswith("hydra.sweep.dir")], return_hydra_config=True)
+        assert cfg.study == "table1" and cfg.hydra.sweeper.params.scene in ("karate,solo_dancer", "multiple_dancers")
     overrides = [a for a in paper.WARMUP[3:]]
     cfg = compose_config(*overrides)
     assert cfg.scene.name == "karate" and cfg.mode.name == "viewdep"
