@@ -171,7 +171,8 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
     """Simulate `n_frames` frames, writing records into `out_dir`; returns the summary.
 
     `states_every` N > 0 writes states/frame_NNNNN.npz (cloth.io.states.save_state: node
-    positions, triangles, obstacles; for the accuracy measures) at frame 0 and every N-th frame.
+    positions, triangles, obstacles, for the accuracy measures; velocities, material coordinates
+    and handle anchors, for a restart from it) at frame 0 and every N-th frame.
     `checkpoint_every` N > 0 saves the whole state and the records so far to checkpoint/state.pkl
     every N-th frame (only the latest is kept; its time counts in time_io_s, except in the
     checkpoint's own copy of that frame's record). To continue from a checkpoint pass its
@@ -192,7 +193,8 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
     camera, colors = _view(sim)
     recorder.log_frame(sim.frame, sim.time, sim.mesh, face_colors=colors, obstacles=obstacles, camera=camera)
     if states_every > 0 and sim.frame % states_every == 0:
-        save_state(out_dir / "states" / f"frame_{sim.frame:05d}.npz", sim.mesh, sim.frame, sim.time, obstacles)
+        save_state(out_dir / "states" / f"frame_{sim.frame:05d}.npz", sim.mesh, sim.frame, sim.time, obstacles,
+                   scene.handles, restart=True)
     bar = None
     if progress:
         bar = tqdm(total=n_frames, initial=len(rows), desc=f"{scene.name}", unit="frame")
@@ -205,7 +207,8 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
             if obj_every > 0 and sim.frame % obj_every == 0:
                 save_obj(out_dir / "obj" / f"frame_{sim.frame:05d}.obj", sim.mesh)
             if states_every > 0 and sim.frame % states_every == 0:
-                save_state(out_dir / "states" / f"frame_{sim.frame:05d}.npz", sim.mesh, sim.frame, sim.time, obstacles)
+                save_state(out_dir / "states" / f"frame_{sim.frame:05d}.npz", sim.mesh, sim.frame, sim.time, obstacles,
+                   scene.handles, restart=True)
             if stills_every > 0 and sim.frame % stills_every == 0:
                 write_still(sim, out_dir / "stills" / f"frame_{sim.frame:05d}.png")
             rows.append(row)

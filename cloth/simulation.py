@@ -36,8 +36,10 @@ from cloth.collision.selfcollision import (
     resolve_self_collisions,
 )
 from cloth.collision.untangle import untangle
+from cloth.core.mesh import Mesh
 from cloth.core.records import COLLISION_RECORD, PHASES, REMESH_RECORD, SIM_PHASES, VIEW_RECORD
 from cloth.core.scene import Scene
+from cloth.core.transfer import transfer_node_values
 from cloth.physics.assembly import SparsityPattern
 from cloth.physics.buckling import face_alpha
 from cloth.physics.forces import Bending, ForceTerm, Gravity, Membrane, Wind, element_families
@@ -202,6 +204,57 @@ class Simulation:
             term.rebuild(mesh, self.pattern)
         if self.stages.buckling:
             self.update_buckling()
+
+    # ---- restarting from another run's state -------------------------------------------------
+    def restart_from(self, state: dict) -> None:
+        """Continue from a saved state of a run of the same scene (cloth.io.states with restart data,
+        possibly of another mode or resolution) at its frame: the re-synchronised error starts
+        every mode from the reference's state.
+
+        The scene's time-dependent parts (body, handles' motions, camera) are functions of time
+        and are set to the state's time. The cloth: a remeshing mode takes the state's mesh as it
+        is (its topology, material coordinates, positions, velocities, pins and handle anchors)
+        and remeshes it with its own sizing on the next frame; a fixed mesh keeps its own
+        topology and takes positions and velocities interpolated at its nodes' material points
+        (cloth.core.transfer), its handle nodes placed on their own motions. The solver's warm
+        start and the crossings pending from an earlier untangling start afresh. ValueError
+        names a state that does not fit (another frame time, other handles).
+        """
+        scene = self.scene
+        frame = int(state["frame"])
+        t = frame * scene.frame_time
+        if not abs(t - float(state["time"])) <= 1e-9 * max(1.0, abs(t)):
+            raise ValueError(f"state of frame {frame} is at t = {state['time']} s, but frame {frame} of this "
+                             f"scene is at {t} s (another frame time)")
+        handle_ids = np.asarray(state["node_handle"])
+        if handle_ids.size and int(handle_ids.max()) >= len(scene.handles):
+            raise ValueError(f"the state has {int(handle_ids.max()) + 1} handles, this scene {len(scene.handles)}")
+        if self.remesher is not None:
+            scene.mesh = Mesh(node_x=np.array(state["node_x"], dtype=np.float64),
+                              node_v=np.array(state["node_v"], dtype=np.float64),
+                              node_pinned=np.array(state["node_pinned"], dtype=bool),
+                              vert_u=np.array(state["vert_u"], dtype=np.float64),
+                              vert_node=state["vert_node"], face_verts=state["face_verts"],
+                              density=scene.material.density)
+            for i, h in enumerate(scene.handles):
+                h.nodes = np.flatnonzero(handle_ids == i)
+                h.local = np.array(state["handle_local"][h.nodes], dtype=np.float64)
+        else:
+            mesh = scene.mesh
+            values, _ = transfer_node_values(state, mesh.vert_u, mesh.vert_node, mesh.face_verts)
+            mesh.node_x[:] = values["node_x"]
+            mesh.node_v[:] = values["node_v"]
+            for h in scene.handles:
+                mesh.node_x[h.nodes] = h.targets(t)
+        self.frame, self.time = frame, t
+        self.steps_taken = frame * scene.steps_per_frame
+        self.intersections_pending = 0
+        self._inside_at_start = None
+        self.rebuild()
+        if self.stages.obstacle_contact:
+            self.obstacle_set.set_time(t)
+            for ob in self.mesh_obstacles:
+                ob.set_time(t)
 
     # ---- the frame -------------------------------------------------------------------------
     def advance_frame(self) -> dict:

@@ -1,6 +1,6 @@
 """Screen-space accuracy of runs against a fine reference of the same scene and camera.
 
-    python -m experiments.accuracy RUN_DIR [RUN_DIR ...] --reference REF_DIR [--resolution-scale 1.0]
+    python -m experiments.accuracy RUN_DIR [RUN_DIR ...] --reference REF_DIR [REF_DIR ...] [--resolution-scale 1.0]
 
 Reads the per-frame states (``states/frame_NNNNN.npz``, written by the runner with
 ``output.states_every``) of every run and of the reference, rebuilds the camera path from the
@@ -8,11 +8,20 @@ run's ``config.yaml``, renders both at every frame they both have (cloth.eval.sc
 into each RUN_DIR:
 
 * ``accuracy.parquet``: one row per frame, columns frame, error_px, silhouette_px, surface_px,
-  cloth_px_run, cloth_px_ref, iou, offscreen_distance_m (definitions: cloth.eval.screenspace);
+  cloth_px_run, cloth_px_ref, iou, offscreen_distance_m (definitions: cloth.eval.screenspace),
+  and error_lo_px, error_hi_px, floor_px, error_ratio, members (a reference ensemble, below);
 * ``accuracy.json``: ``<column>_mean`` and ``<column>_max`` of every numeric column (NaN frames
   left out; null when a column has no value), ``reference`` (the reference folder), ``frames``
   (frames evaluated), ``resolution`` ([width, height] of the rendered images),
   ``resolution_scale`` and ``definition`` (the definitions, with their version).
+
+**A reference ensemble** (several REF_DIRs: runs of the reference config that differ only in
+their seed, the members): every column is the mean over the members; error_lo_px / error_hi_px
+the 90 % bootstrap interval of error_px over them; floor_px, the *chaos floor*, the median of
+error_px between pairs of members (two equally good runs that chaos has parted); error_ratio =
+error_px / floor_px (about 1: the run is as far from the reference as chaos alone puts it).
+accuracy.json then also gives floor_saturation_frame, the first frame where the floor reaches
+FLOOR_SATURATION of its largest value, and error_ratio_before_saturation_mean.
 
 Every run is checked against the reference before any work (same scene and scene parameters
 apart from the mesh resolution, same camera config, same frame time, states for every frame of
@@ -38,8 +47,15 @@ from cloth.io.states import load_state, merge_states
 from cloth.view.camera import ViewError
 from cloth.view.paths import path_from_config
 
+# With an ensemble of reference members: the bootstrap interval of error_px over the members, the
+# chaos floor (median error between pairs of members; NaN with one member), error / floor, members.
+ENSEMBLE_COLUMNS = ("error_lo_px", "error_hi_px", "floor_px", "error_ratio", "members")
 COLUMNS = ("frame", "error_px", "silhouette_px", "surface_px", "cloth_px_run", "cloth_px_ref", "iou",
-           "offscreen_distance_m")
+           "offscreen_distance_m", *ENSEMBLE_COLUMNS)
+BOOTSTRAP = 2000  # resamples for the 90 % intervals (seeded: the same numbers every time)
+# The floor has saturated at the first frame where it reaches this fraction of its largest value:
+# from there on, two members of the ensemble are as different as two unrelated runs of the scene.
+FLOOR_SATURATION = 0.9
 # Frame times of a run and its reference are equal if they agree to this many seconds (config
 # values pass through YAML; the times of states are multiples of the frame time).
 TIME_TOL_S = 1e-9
@@ -119,8 +135,9 @@ def _first_difference(a, b, key: str):
     return None if a == b else (key, a, b)
 
 
-def check_pair(run_dir, ref_dir) -> list[int]:
-    """The frames to evaluate (every frame the run has a state for); AccuracyError names a mismatch."""
+def check_configs(run_dir, ref_dir) -> None:
+    """A run and its reference are of the same scene (parameters apart from the resolution), camera
+    and frame time; AccuracyError names the first mismatch."""
     run_dir, ref_dir = Path(run_dir), Path(ref_dir)
     for d in (run_dir, ref_dir):
         if not d.is_dir():
@@ -148,6 +165,13 @@ def check_pair(run_dir, ref_dir) -> list[int]:
     if diff is not None:
         raise AccuracyError(f"{run_dir}: {diff[0]} differs from the reference's: run {diff[1]!r}, "
                             f"reference {diff[2]!r} ({ref_dir})")
+
+
+def check_pair(run_dir, ref_dir) -> list[int]:
+    """The frames to evaluate (every frame the run has a state for); AccuracyError names a mismatch."""
+    run_dir, ref_dir = Path(run_dir), Path(ref_dir)
+    check_configs(run_dir, ref_dir)
+    ref_cfg = _config(ref_dir)
     run_states, ref_states = state_files(run_dir), state_files(ref_dir)
     for d, states in ((run_dir, run_states), (ref_dir, ref_states)):
         if not states:
@@ -171,36 +195,78 @@ def _load(files: list[Path]) -> dict:
 
 # ---- evaluation --------------------------------------------------------------------------------
 
+def _ref_list(ref_dir) -> list[Path]:
+    """The members of a reference: one folder, or a list of folders (an ensemble)."""
+    refs = [Path(ref_dir)] if isinstance(ref_dir, (str, Path)) else [Path(r) for r in ref_dir]
+    if not refs:
+        raise AccuracyError("no reference run given")
+    return refs
+
+
+def bootstrap_mean_interval(values, resamples: int = BOOTSTRAP, seed: int = 0) -> tuple[float, float]:
+    """90 % percentile-bootstrap interval of the mean of `values` (NaN left out; (nan, nan) if none)."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return math.nan, math.nan
+    rng = np.random.default_rng(seed)
+    means = v[rng.integers(0, v.size, size=(resamples, v.size))].mean(axis=1)
+    return float(np.percentile(means, 5)), float(np.percentile(means, 95))
+
+
 def evaluate_runs(run_dirs, ref_dir, resolution_scale: float = 1.0) -> list[pd.DataFrame]:
     """One accuracy table per run (the columns of COLUMNS, one row per frame); every run is checked
-    before any work. The reference is rendered once per frame for all runs."""
+    before any work. `ref_dir`: the reference run, or the members of a reference ensemble (runs of
+    the reference config with different seeds): each column is then the mean over the members,
+    error_lo_px / error_hi_px the 90 % bootstrap interval of error_px over them, floor_px the
+    chaos floor (the median error_px between pairs of members) and error_ratio = error_px /
+    floor_px. The references are rendered once per frame and camera for all runs."""
     if not (isinstance(resolution_scale, (int, float)) and math.isfinite(resolution_scale) and resolution_scale > 0):
         raise AccuracyError(f"--resolution-scale must be a number > 0, got {resolution_scale!r}")
-    run_dirs, ref_dir = [Path(d) for d in run_dirs], Path(ref_dir)
-    frames = [check_pair(d, ref_dir) for d in run_dirs]
-    ref_states = state_files(ref_dir)
+    refs = _ref_list(ref_dir)
+    run_dirs = [Path(d) for d in run_dirs]
+    frames = [check_pair(d, r) for d in run_dirs for r in refs][::len(refs)]
+    for r in refs[1:]:  # members of one ensemble: the same scene, camera and frame time
+        check_configs(r, refs[0])
+    ref_states = [state_files(r) for r in refs]
     run_states = [state_files(d) for d in run_dirs]
     try:
         paths = [path_from_config(_config(d)["camera"]) for d in run_dirs]
     except (ViewError, KeyError, TypeError, ValueError) as exc:
         raise AccuracyError(f"camera config cannot be built: {exc}") from None
     rows = [[] for _ in run_dirs]
+    numeric = [c for c in COLUMNS if c not in ("frame", *ENSEMBLE_COLUMNS)]
     for frame in sorted(set().union(*frames)):
-        ref = _load(ref_states[frame])
-        ref_img = {}  # the reference's image under each distinct camera (runs share one path)
+        members = [_load(states[frame]) for states in ref_states]
+        ref_img = {}  # the members' images under each distinct camera (runs share one path)
+        floor = {}
         for i, d in enumerate(run_dirs):
             if frame not in run_states[i]:
                 continue
             run = _load(run_states[i][frame])
-            if abs(run["time"] - ref["time"]) > TIME_TOL_S:
+            if abs(run["time"] - members[0]["time"]) > TIME_TOL_S:
                 raise AccuracyError(f"{d}: frame {frame} is at t = {run['time']} s, the reference's at "
-                                    f"t = {ref['time']} s ({ref_dir})")
-            camera = paths[i].camera_at(ref["time"])
+                                    f"t = {members[0]['time']} s ({refs[0]})")
+            camera = paths[i].camera_at(members[0]["time"])
             if camera not in ref_img:
-                ref_img[camera] = render_state(camera, ref, resolution_scale)
-            errors = frame_errors(render_state(camera, run, resolution_scale), ref_img[camera])
-            off, _ = offscreen_distance(camera, run["node_x"], ref["node_x"], ref["face_nodes"])
-            rows[i].append({"frame": frame, **errors, "offscreen_distance_m": off})
+                ref_img[camera] = [render_state(camera, m, resolution_scale) for m in members]
+                pairs = [frame_errors(a, b)["error_px"] for k, a in enumerate(ref_img[camera])
+                         for b in ref_img[camera][k + 1:]]
+                floor[camera] = float(np.median(pairs)) if pairs else math.nan
+            run_img = render_state(camera, run, resolution_scale)
+            per_member = []
+            for m, img in zip(members, ref_img[camera]):
+                off, _ = offscreen_distance(camera, run["node_x"], m["node_x"], m["face_nodes"])
+                per_member.append({**frame_errors(run_img, img), "offscreen_distance_m": off})
+            row = {"frame": frame}
+            for c in numeric:
+                v = np.array([e[c] for e in per_member], dtype=np.float64)
+                row[c] = float(np.nanmean(v)) if np.isfinite(v).any() else math.nan
+            lo, hi = bootstrap_mean_interval([e["error_px"] for e in per_member], seed=frame)
+            f = floor[camera]
+            row.update(error_lo_px=lo, error_hi_px=hi, floor_px=f, members=len(members),
+                       error_ratio=row["error_px"] / f if f > 0 else math.nan)
+            rows[i].append(row)
     return [pd.DataFrame(r, columns=list(COLUMNS)).astype({"frame": np.int64}) for r in rows]
 
 
@@ -215,15 +281,34 @@ def _stat(values: pd.Series, fn) -> float | None:
     return float(fn(v)) if v.size else None
 
 
+def floor_saturation_frame(table: pd.DataFrame) -> int | None:
+    """The first frame whose chaos floor reaches FLOOR_SATURATION x its largest value (None without
+    a floor: a single reference, or a floor that stays 0)."""
+    f = table["floor_px"].to_numpy(dtype=np.float64) if "floor_px" in table.columns else np.zeros(0)
+    ok = np.isfinite(f)
+    if not ok.any() or not np.nanmax(f) > 0:
+        return None
+    k = np.flatnonzero(ok & (f >= FLOOR_SATURATION * np.nanmax(f)))[0]
+    return int(table["frame"].iloc[k])
+
+
 def summarize(table: pd.DataFrame, ref_dir, resolution, resolution_scale: float) -> dict:
-    """accuracy.json: <column>_mean and <column>_max of every numeric column, reference, frames,
-    resolution, resolution_scale, definition."""
+    """accuracy.json: <column>_mean and <column>_max of every numeric column, reference (the folder,
+    or the list of an ensemble's members), members, floor_saturation_frame, error_ratio_before_saturation_mean
+    (the mean ratio over the frames before it: where the floor is not yet "two different skirts"),
+    frames, resolution, resolution_scale, definition."""
     out = {}
     for c in table.columns:
         if pd.api.types.is_numeric_dtype(table[c]):
             out[f"{c}_mean"] = _stat(table[c], np.mean)
             out[f"{c}_max"] = _stat(table[c], np.max)
-    out.update(reference=str(Path(ref_dir).resolve()), frames=int(len(table)),
+    refs = _ref_list(ref_dir)
+    sat = floor_saturation_frame(table)
+    out["floor_saturation_frame"] = sat
+    out["error_ratio_before_saturation_mean"] = (
+        _stat(table["error_ratio"][(table["frame"] < sat).to_numpy()], np.mean) if sat is not None else None)
+    out.update(reference=str(refs[0].resolve()) if len(refs) == 1 else [str(r.resolve()) for r in refs],
+               members=len(refs), frames=int(len(table)),
                resolution=[int(resolution[0]), int(resolution[1])], resolution_scale=float(resolution_scale),
                definition=definition())
     return out
@@ -248,8 +333,9 @@ def write_accuracy(run_dir, table: pd.DataFrame, ref_dir, resolution_scale: floa
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m experiments.accuracy", description=__doc__.split("\n")[0])
     parser.add_argument("runs", nargs="+", metavar="RUN_DIR", help="run folders to evaluate")
-    parser.add_argument("--reference", required=True, metavar="REF_DIR",
-                        help="the fine nonadaptive reference run of the same scene and camera")
+    parser.add_argument("--reference", required=True, nargs="+", metavar="REF_DIR",
+                        help="the fine nonadaptive reference run of the same scene and camera, or the members of "
+                             "a reference ensemble (the reference config with different seeds: mean, interval, floor)")
     parser.add_argument("--resolution-scale", type=float, default=1.0,
                         help="render at this times the camera's image size (distances stay in camera pixels)")
     args = parser.parse_args(argv)
@@ -263,7 +349,10 @@ def main(argv=None) -> int:
         fmt = lambda v, u: "n/a" if v is None else f"{v:.3g} {u}"  # noqa: E731
         print(f"{run_dir}: {s['frames']} frames  error {fmt(s['error_px_mean'], 'px')} mean, "
               f"{fmt(s['error_px_max'], 'px')} max  iou {fmt(s['iou_mean'], '')} "
-              f"off-screen {fmt(s['offscreen_distance_m_mean'], 'm')}  -> {Path(run_dir) / 'accuracy.parquet'}")
+              f"off-screen {fmt(s['offscreen_distance_m_mean'], 'm')}"
+              + (f"  floor {fmt(s['floor_px_mean'], 'px')} mean, saturated at frame {s['floor_saturation_frame']}"
+                 if s["members"] > 1 else "")
+              + f"  -> {Path(run_dir) / 'accuracy.parquet'}")
     return 0
 
 

@@ -57,10 +57,15 @@ RUN_MARKERS = ("config.yaml", "frames.parquet", "summary.json")
 MODES = ("nonadaptive", "adaptive", "viewdep")
 # Swept parameters: runs-table column -> dotted config key (present in mode viewdep / when set).
 SWEPT = {"nu_out": "mode.view.nu_out", "margin": "mode.view.margin", "T": "mode.view.anticipation_frames",
-         "anticipation": "mode.view.anticipation"}
-SWEPT_COLUMNS = ("nu_out", "margin", "T", "anticipation", "buckling_k", "buckling_mode")
+         "anticipation": "mode.view.anticipation", "l_min_px": "mode.view.l_min_px"}
+SWEPT_COLUMNS = ("nu_out", "margin", "T", "anticipation", "l_min_px", "buckling_k", "buckling_mode",
+                 "resolution_factor")
 ACCURACY_KEYS = ("error_px_mean", "error_px_max", "silhouette_px_mean", "surface_px_mean", "iou_mean",
                  "offscreen_distance_m_mean")
+# sync.json (experiments.sync, the re-synchronised error) -> runs table column
+SYNC_KEYS = {"sync_error_px_mean": "sync_error_px_mean", "sync_error_px_lo": "sync_error_px_lo",
+             "sync_error_px_hi": "sync_error_px_hi", "sync_error_px_cut_mean": "sync_error_px_cut_mean",
+             "windows": "sync_windows", "horizon": "sync_horizon"}
 STAT_COLUMNS = {"faces": "faces", "verts": "verts", "sim_s": "time"}  # frames column -> Table 1 name
 TABLE1_COLUMNS = ("scene", "scale", "mode", "variant", "frames", "faces_min", "faces_max", "faces_mean",
                   "verts_min", "verts_max", "verts_mean", "time_min_s", "time_max_s", "time_mean_s", "io_mean_s",
@@ -263,13 +268,15 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
     left out). Raises _Bad with the reason when the folder cannot be used.
 
     Row: path, scene, mode, scale, study, variant, reference, seed, timestamp, the swept
-    parameters (nu_out, margin, T, anticipation, buckling_k, buckling_mode; NaN/'' where the mode
-    has none), frame_time_s, camera_cuts_s, status, frames, frames_requested, characters,
+    parameters (nu_out, margin, T, anticipation, l_min_px, buckling_k, buckling_mode,
+    resolution_factor; NaN/'' where the mode has none), frame_time_s, camera_cuts_s, status, frames,
+    frames_requested, characters,
     faces/verts/time min/max/mean (time_*_s from sim_s), time_total_s, io_mean_s and wall_mean_s
     (I/O and the whole frame, beside the simulation time), time_<phase>_mean_s,
     size_min_fraction_mean / size_max_fraction_mean (faces at a sizing bound over faces, mean over
     the frames that remeshed) and edge_at_size_min_m (median over those frames; NaN without them),
-    and accuracy.json's ACCURACY_KEYS plus accuracy_frames (NaN without accuracy).
+    and accuracy.json's ACCURACY_KEYS plus accuracy_frames (NaN without accuracy), and sync.json's
+    SYNC_KEYS (the re-synchronised error; NaN without it).
     """
     path = Path(path)
     cfg = _read_yaml(path / "config.yaml")
@@ -306,6 +313,7 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
         v = effective_view_setting(cfg, key)
         row[col] = (math.nan if v is None else bool(v)) if col == "anticipation" else _float(v)
     row["anticipation"] = row["anticipation"] if mode == "viewdep" else math.nan
+    row["resolution_factor"] = _float(cfg.get("resolution_factor", 1.0)) if mode == "nonadaptive" else math.nan
     row["buckling_k"] = _float(buckling.get("k")) if isinstance(buckling, dict) else math.nan
     row["buckling_mode"] = (str(buckling.get("mode", "adaptive")) if isinstance(buckling, dict) else "none")
     row["frame_time_s"] = _float(_get(cfg, "scene.params.frame_time"))
@@ -348,6 +356,15 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
             row["accuracy_frames"] = _float(acc.get("frames"))
         except _Bad as exc:
             notes.append(f"{exc}; the run is kept without accuracy")
+    for col in SYNC_KEYS.values():
+        row[col] = math.nan
+    if (path / "sync.json").exists():
+        try:
+            sync = _read_json(path / "sync.json", "sync")
+            for k, col in SYNC_KEYS.items():
+                row[col] = _float(sync.get(k))
+        except _Bad as exc:
+            notes.append(f"{exc}; the run is kept without its re-synchronised error")
     if (path / "accuracy.parquet").exists():
         try:
             acc_frames = _read_parquet(path / "accuracy.parquet")

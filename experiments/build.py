@@ -27,6 +27,9 @@ IMPLEMENTED_MODES = ("nonadaptive", "adaptive", "viewdep")
 REMESHING_MODES = ("adaptive", "viewdep")
 
 
+MEMBER_SEED_STRIDE = 1000  # scene seed of member K of a reference ensemble: seed + 1000 K
+
+
 class ConfigError(ValueError):
     """A bad config value; the message names the key."""
 
@@ -140,6 +143,15 @@ def build_simulation(cfg: DictConfig, character: int | None = None):
                  f"scene {name!r} has no reference preset at scale {cfg.scale!r} (scene.scales.{cfg.scale}.reference)")
         params.update(reference)
     sizing_overrides = params.pop("sizing", None) or {}
+    factor = cfg.get("resolution_factor", 1.0)
+    _require(isinstance(factor, (int, float)) and not isinstance(factor, bool) and factor > 0, "resolution_factor",
+             f"must be a number > 0, got {factor!r}")
+    if factor != 1.0:
+        _require(mode == "nonadaptive" and not cfg.get("reference", False), "resolution_factor",
+                 f"scales the fixed mesh of the preset; mode={mode}{' (reference)' if cfg.get('reference') else ''} "
+                 f"has none to scale")
+        _require("resolution" in params, "resolution_factor", f"scene {name!r} has no resolution to scale")
+        params["resolution"] = max(int(round(params["resolution"] * factor)), 1)
     for key in ("frame_time", "steps_per_frame", "resolution"):
         if key in params:
             v = params[key]
@@ -147,7 +159,14 @@ def build_simulation(cfg: DictConfig, character: int | None = None):
     _require(isinstance(params.get("steps_per_frame", 1), int), "scene.params.steps_per_frame",
              f"must be an integer, got {params.get('steps_per_frame')!r}")
     params["effects"] = tuple(cfg.scene.effects)
-    params["seed"] = int(cfg.seed)
+    member = cfg.get("reference_member", 0)
+    _require(isinstance(member, int) and not isinstance(member, bool) and member >= 0, "reference_member",
+             f"must be an integer >= 0, got {member!r}")
+    _require(member == 0 or cfg.get("reference", False), "reference_member",
+             "members of a reference ensemble are reference runs (+point=member/K sets both)")
+    # member K of the ensemble of seed s: the scene's seed s + MEMBER_SEED_STRIDE K (distinct from
+    # every run's own seed below the stride)
+    params["seed"] = int(cfg.seed) + MEMBER_SEED_STRIDE * int(member)
     if name in CROWDS:
         crowd_size(cfg)
         params["character"] = int(character or 0)

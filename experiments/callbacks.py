@@ -6,7 +6,10 @@ re-simulating) and
 1. measures accuracy: when the study has a reference run (``reference: true``, the point
    ``conf/point/reference.yaml``), every other completed run of the same scene and seed is
    measured against it (experiments.accuracy: screen-space error in pixels and the ballooning of
-   out-of-view cloth), which writes accuracy.parquet and accuracy.json into each run folder;
+   out-of-view cloth), which writes accuracy.parquet and accuracy.json into each run folder; with
+   the callback's ``sync`` options (conf/experiment/accuracy.yaml), also the re-synchronised
+   error of each of them and of the reference itself (experiments.sync: every run restarted from
+   the reference's states), which writes sync.parquet and sync.json;
 2. makes the study's tables and figures (paper_figures) into ``<sweep dir>/figures``.
 
 A failure in either is reported and does not undo the runs: the folders stay as written and
@@ -25,6 +28,8 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
 from experiments.accuracy import evaluate_runs, write_accuracy
+from experiments.sync import BEFORE_CUT, EVERY, HORIZON, RESOLUTION_SCALE, check_options, write_sync
+from experiments.sync import evaluate_run as evaluate_sync
 
 
 def run_folders(sweep_dir: Path) -> list[Path]:
@@ -39,27 +44,45 @@ def _completed(run: Path) -> bool:
         return False
 
 
-def measure_accuracy(sweep_dir: Path, log=print) -> int:
-    """Measure every completed run against the reference run of its scene and seed in `sweep_dir`; returns how
-    many runs were measured (0 when the study has no reference)."""
+def measure_accuracy(sweep_dir: Path, log=print, sync: dict | None = None) -> int:
+    """Measure every completed run against the reference of its scene and seed in `sweep_dir`: its
+    reference run, or the ensemble of its reference runs (members 0, 1, ...: conf/point/member/K)
+    with their chaos floor. Returns how many runs were measured (0 when the study has no
+    reference). `sync` (every, horizon, before_cut, resolution_scale: experiments.sync's options)
+    also measures the re-synchronised error of those runs and of the reference (member 0), which
+    restarted from its own states measures the restart itself (~0)."""
     runs = run_folders(sweep_dir)
     cfgs = {r: yaml.safe_load((r / "config.yaml").read_text()) for r in runs}
+    ensembles: dict[tuple, list[Path]] = {}
+    for r in runs:
+        if cfgs[r].get("reference"):
+            key = (cfgs[r]["scene"]["name"], cfgs[r].get("seed"))
+            ensembles.setdefault(key, []).append(r)
     measured = 0
-    for ref in [r for r in runs if cfgs[r].get("reference")]:
-        scene, seed = cfgs[ref]["scene"]["name"], cfgs[ref].get("seed")
-        if not _completed(ref):
-            log(f"accuracy: reference {ref} did not complete; its scene's runs are not measured")
+    for (scene, seed), members in ensembles.items():
+        members = sorted(members, key=lambda r: cfgs[r].get("reference_member") or 0)
+        unfinished = [m for m in members if not _completed(m)]
+        for m in unfinished:
+            log(f"accuracy: reference {m} did not complete; left out of the reference of {scene}, seed {seed}")
+        members = [m for m in members if _completed(m)]
+        if not members:
+            log(f"accuracy: no reference of {scene}, seed {seed} completed; its runs are not measured")
             continue
         # with repeats, each seed has its own reference: a run is measured against its seed's
-        targets = [r for r in runs if r != ref and cfgs[r]["scene"]["name"] == scene and cfgs[r].get("seed") == seed
+        targets = [r for r in runs if cfgs[r]["scene"]["name"] == scene and cfgs[r].get("seed") == seed
                    and not cfgs[r].get("reference") and _completed(r)]
-        if not targets:
-            continue
-        log(f"accuracy: {len(targets)} run(s) of {scene} against {ref.name}")
-        tables = evaluate_runs(targets, ref)
-        for run, table in zip(targets, tables):
-            write_accuracy(run, table, ref)
-            measured += 1
+        ref = members[0]
+        if targets:
+            log(f"accuracy: {len(targets)} run(s) of {scene} against "
+                f"{ref.name if len(members) == 1 else f'an ensemble of {len(members)} references'}")
+            tables = evaluate_runs(targets, members if len(members) > 1 else ref)
+            for run, table in zip(targets, tables):
+                write_accuracy(run, table, members if len(members) > 1 else ref)
+                measured += 1
+        if sync is not None and (cfgs[ref].get("reference_member") or 0) == 0:
+            for run in [ref, *targets]:
+                log(f"sync: {run.name} restarted from {ref.name}'s states")
+                write_sync(run, evaluate_sync(run, ref, **sync), ref, **sync)
     return measured
 
 
@@ -74,18 +97,35 @@ def make_figures(sweep_dir: Path, log=print) -> Path:
     return out
 
 
+REDO = {"accuracy": "python -m experiments.accuracy (and python -m experiments.sync)",
+        "figures": "python -m paper_figures"}
+
+
 class StudyCallback(Callback):
     """Registered by every conf/experiment/* preset (hydra.callbacks.study)."""
 
-    def __init__(self, accuracy: bool = True, figures: bool = True) -> None:
+    def __init__(self, accuracy: bool = True, figures: bool = True, sync=None) -> None:
+        """`sync`: None, or the options of the re-synchronised error (every, horizon, before_cut,
+        resolution_scale; experiments.sync defaults for those not given)."""
         self.accuracy, self.figures = bool(accuracy), bool(figures)
+        self.sync = None
+        if sync is not None:
+            opts = {"every": EVERY, "horizon": HORIZON, "before_cut": BEFORE_CUT, "resolution_scale": RESOLUTION_SCALE}
+            unknown = set(sync) - set(opts)
+            if unknown:
+                raise ValueError(f"hydra.callbacks.study.sync: unknown option(s) {sorted(unknown)}; "
+                                 f"known: {sorted(opts)}")
+            opts.update({k: sync[k] for k in sync})
+            check_options(opts["every"], opts["horizon"], opts["before_cut"], opts["resolution_scale"])
+            self.sync = opts
 
     def on_multirun_end(self, config: DictConfig, **kwargs) -> None:
         sweep_dir = Path(config.hydra.sweep.dir)
         if not sweep_dir.exists():
             return
-        for step, enabled, fn in (("accuracy", self.accuracy, measure_accuracy),
-                                  ("figures", self.figures, make_figures)):
+        steps = (("accuracy", self.accuracy, lambda d: measure_accuracy(d, sync=self.sync)),
+                 ("figures", self.figures, make_figures))
+        for step, enabled, fn in steps:
             if not enabled:
                 continue
             try:
@@ -93,5 +133,5 @@ class StudyCallback(Callback):
             except Exception:  # noqa: BLE001 - the runs stay; say what failed and how to redo it
                 print(f"study callback: {step} failed for {sweep_dir}:\n{traceback.format_exc()}"
                       f"the run folders are intact; re-run it with "
-                      f"{'python -m experiments.accuracy' if step == 'accuracy' else 'python -m paper_figures'}",
+                      f"{REDO[step]}",
                       file=sys.stderr)

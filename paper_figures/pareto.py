@@ -1,12 +1,18 @@
-"""What accuracy costs in time: screen-space error (error_px_mean) against mean time per frame over
-every run that has accuracy (all modes and sweep settings), coloured by mode, labelled by
-variant, the Pareto front marked; one panel per scene and scale (errors of different scenes are
-not comparable).
+"""What accuracy costs in time: error against mean simulation time per frame over every run that
+has accuracy (all modes and sweep settings), coloured by mode, labelled by variant, the Pareto
+front marked; one panel per scene and scale (errors of different scenes are not comparable).
+
+The error is the re-synchronised error (``sync_error_px_mean``, experiments.sync: every run
+restarted from the reference's states, H frames later, with its 90 % bootstrap interval over the
+windows as error bars) where the runs have it, else the whole-run screen-space error
+(``error_px_mean``, experiments.accuracy; no interval), which chaos swamps after about a second.
 
     python -m paper_figures.pareto ROOT [ROOT ...] [--out DIR]
 
-Writes pareto.png/.pdf and pareto.csv/.md (every point; on_front marks the front: no other run of
-the same scene and scale is at least as fast and at least as accurate, and better in one).
+Writes pareto.png/.pdf and pareto.csv/.md (every point; ``error`` names the measure). on_front
+marks the front: no other run of the same scene and scale is at least as fast and at least as
+accurate, and better in one; with intervals, a run is on it only when its interval lies wholly
+below the interval of every faster run (its extra time buys an error that is told apart).
 """
 
 from __future__ import annotations
@@ -24,28 +30,48 @@ from experiments.aggregate import MODES, baseline_for
 from .common import MODE_MARKERS, MODE_NAMES, RunSet, Skip, color, save_figure, script_main, write_table
 
 
-def pareto_front(time_s, error) -> np.ndarray:
-    """on_front[i]: no point j has time_j <= time_i and error_j <= error_i with one of them <."""
+def pareto_front(time_s, error, lo=None, hi=None) -> np.ndarray:
+    """on_front[i]: no point j has time_j <= time_i and error_j <= error_i with one of them <; with
+    intervals (lo, hi), also hi_i < lo_j for every j with time_j < time_i."""
     t, e = np.asarray(time_s, float), np.asarray(error, float)
     dominated = ((t[None, :] <= t[:, None]) & (e[None, :] <= e[:, None])
                  & ((t[None, :] < t[:, None]) | (e[None, :] < e[:, None])))
-    return ~dominated.any(axis=1)
+    front = ~dominated.any(axis=1)
+    if lo is not None and hi is not None:
+        lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+        faster = t[None, :] < t[:, None]  # [i, j]: j is faster than i
+        apart = hi[:, None] < lo[None, :]  # [i, j]: i's interval wholly below j's
+        front &= ~(faster & ~apart).any(axis=1)
+    return front
+
+
+def _error_columns(g: pd.DataFrame) -> tuple[str, pd.Series, pd.Series | None, pd.Series | None]:
+    """(measure, error, lo, hi) of a scene's runs: the re-synchronised error with its interval when
+    every run has it, else the whole-run error without one."""
+    if "sync_error_px_mean" in g.columns and g["sync_error_px_mean"].notna().all():
+        return "sync_error_px", g["sync_error_px_mean"], g["sync_error_px_lo"], g["sync_error_px_hi"]
+    return "error_px", g["error_px_mean"], None, None
 
 
 def pareto_table(runs: pd.DataFrame) -> pd.DataFrame:
     """One row per run with accuracy (never a reference): scene, scale, mode, variant, run,
-    time_mean_s, error_px_mean, faces_mean, speedup (against the adaptive run of the scene in the
-    same study and seed: a study's runs share a commit and a machine; NaN when that study has none), on_front."""
+    time_mean_s, error (the measure: sync_error_px or error_px), error_px (its mean), error_lo_px /
+    error_hi_px (its 90 % interval; NaN for error_px), faces_mean, speedup (against the adaptive run
+    of the scene in the same study and seed: a study's runs share a commit and a machine; NaN when
+    that study has none), on_front."""
     if runs.empty:
         return pd.DataFrame()
     pts = runs[~runs["reference"].astype(bool) & runs["error_px_mean"].notna() & runs["time_mean_s"].notna()]
     rows = []
     for (scene, scale), g in pts.groupby(["scene", "scale"], sort=True):
-        front = pareto_front(g["time_mean_s"], g["error_px_mean"])
-        for r, on in zip(g.itertuples(), front):
+        measure, err, lo, hi = _error_columns(g)
+        front = pareto_front(g["time_mean_s"], err, lo, hi)
+        for i, (r, on) in enumerate(zip(g.itertuples(), front)):
             base = baseline_for(runs[runs["study"] == r.study], scene, scale, seed=r.seed)
             rows.append({"scene": scene, "scale": scale, "mode": r.mode, "variant": r.variant or r.mode, "run": r.run,
-                         "time_mean_s": r.time_mean_s, "error_px_mean": r.error_px_mean, "faces_mean": r.faces_mean,
+                         "time_mean_s": r.time_mean_s, "error": measure, "error_px": float(err.iloc[i]),
+                         "error_lo_px": float(lo.iloc[i]) if lo is not None else np.nan,
+                         "error_hi_px": float(hi.iloc[i]) if hi is not None else np.nan, "faces_mean": r.faces_mean,
                          "speedup": base["time_mean_s"] / r.time_mean_s if base is not None else np.nan,
                          "on_front": bool(on)})
     out = pd.DataFrame(rows)
@@ -64,17 +90,22 @@ def make(runset: RunSet, out, paper_timings=None, log=print) -> list[Path]:
     for ax, ((scene, scale), g) in zip(axes.flat, groups):
         for mode in sorted(g["mode"].unique(), key=lambda m: MODES.index(m) if m in MODES else 9):
             m = g[g["mode"] == mode]
-            ax.scatter(m["time_mean_s"], m["error_px_mean"], color=color(mode), marker=MODE_MARKERS.get(mode, "D"),
+            if m["error_lo_px"].notna().any():
+                ax.errorbar(m["time_mean_s"], m["error_px"], yerr=[m["error_px"] - m["error_lo_px"],
+                                                                   m["error_hi_px"] - m["error_px"]],
+                            fmt="none", ecolor=color(mode), elinewidth=0.8, capsize=2, zorder=2)
+            ax.scatter(m["time_mean_s"], m["error_px"], color=color(mode), marker=MODE_MARKERS.get(mode, "D"),
                        s=36, label=MODE_NAMES.get(mode, mode), zorder=3)
         for r in g.itertuples():
-            ax.annotate(r.variant, (r.time_mean_s, r.error_px_mean), fontsize=7, xytext=(4, 3),
+            ax.annotate(r.variant, (r.time_mean_s, r.error_px), fontsize=7, xytext=(4, 3),
                         textcoords="offset points")
         f = g[g["on_front"]].sort_values("time_mean_s")
-        ax.scatter(f["time_mean_s"], f["error_px_mean"], s=110, facecolors="none", edgecolors="k", lw=1.0, zorder=4)
-        ax.step(f["time_mean_s"], f["error_px_mean"], where="post", color="k", lw=1.0, ls="--", label="Pareto front",
+        ax.scatter(f["time_mean_s"], f["error_px"], s=110, facecolors="none", edgecolors="k", lw=1.0, zorder=4)
+        ax.step(f["time_mean_s"], f["error_px"], where="post", color="k", lw=1.0, ls="--", label="Pareto front",
                 zorder=2)
-        ax.set_xlabel("time per frame, mean (s)")
-        ax.set_ylabel("screen-space error, mean (px)")
+        ax.set_xlabel("simulation time per frame, mean (s)")
+        ax.set_ylabel("re-synchronised error, mean (px; 90% interval)" if g["error"].iloc[0] == "sync_error_px"
+                      else "screen-space error over the whole run, mean (px)")
         ax.set_title(f"{scene} ({scale})" if scale else scene)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)

@@ -50,6 +50,7 @@ IO_S = 0.5
 def write_run(folder: Path, scene: str, mode: str, faces, verts, sim_s, *, study="table1", variant=None,
               scale="small", status="completed", frames_requested=None, timestamp="2025-01-01T00:00:00+00:00",
               view=None, buckling=None, accuracy=None, accuracy_frames=None, extra_frames=None, camera_cuts=None,
+              sync=None,
               summary_extra=None, scene_view=None, seed=0, manifest=None) -> Path:
     """A run folder as experiments.run writes it (only what aggregation reads)."""
     folder.mkdir(parents=True)
@@ -77,6 +78,8 @@ def write_run(folder: Path, scene: str, mode: str, faces, verts, sim_s, *, study
         (folder / "accuracy.json").write_text(json.dumps(accuracy))
     if accuracy_frames is not None:
         pd.DataFrame(accuracy_frames).to_parquet(folder / "accuracy.parquet", index=False)
+    if sync is not None:
+        (folder / "sync.json").write_text(json.dumps(sync))
     return folder
 
 
@@ -367,6 +370,29 @@ def test_pareto_front_by_hand():
     # (4, 1) twice: equal points do not dominate each other
     on = pareto_front([1, 2, 3, 4, 4], [5, 3, 4, 1, 1])
     assert on.tolist() == [True, True, False, True, True]
+    # with intervals: (2, 3) [2.5, 3.5] is told apart from (1, 5) [4, 6]; (4, 1) [0, 4.5] overlaps
+    # (1, 5)'s interval: not on the front, though no point dominates it
+    on = pareto_front([1, 2, 4], [5, 3, 1], lo=[4, 2.5, 0], hi=[6, 3.5, 4.5])
+    assert on.tolist() == [True, True, False]
+
+
+def test_pareto_table_uses_the_resynchronised_error_and_its_interval(tmp_path):
+    from paper_figures.pareto import pareto_table
+
+    s = "solo_dancer"
+    for i, (mode, t, e, lo, hi) in enumerate((("nonadaptive", 1.0, 4.0, 3.5, 4.5), ("adaptive", 2.0, 2.0, 1.8, 2.2),
+                                              ("viewdep", 1.5, 3.9, 3.0, 4.6))):
+        write_run(tmp_path / f"{i}_{mode}", s, mode, [50] * 4, [30] * 4, [t] * 4, study="accuracy",
+                  accuracy={"error_px_mean": 60.0}, sync={"sync_error_px_mean": e, "sync_error_px_lo": lo,
+                                                          "sync_error_px_hi": hi, "windows": 15, "horizon": 8})
+    runs = load_runs([tmp_path]).runs
+    assert runs["sync_windows"].tolist() == [15, 15, 15] and runs["sync_horizon"].tolist() == [8, 8, 8]
+    t = pareto_table(runs).set_index("mode")
+    assert set(t["error"]) == {"sync_error_px"}
+    assert t.loc["adaptive", "error_px"] == 2.0 and t.loc["adaptive", "error_lo_px"] == 1.8
+    # viewdep is faster than adaptive but its error is not told apart from nonadaptive's, which is faster still
+    assert t["on_front"].to_dict() == {"nonadaptive": True, "viewdep": False, "adaptive": True}
+    assert t.loc["viewdep", "speedup"] == pytest.approx(2.0 / 1.5)
 
 
 def _study_runs(root: Path) -> None:

@@ -41,10 +41,39 @@ def test_every_material_and_solver_builds(material, solver):
     ("scale=huge", "scale"),
     ("+scene.params.colour=3", "colour"),
     ("max_speed=-1", "max_speed"),
+    ("resolution_factor=0", "resolution_factor"),
+    ("resolution_factor=abc", "resolution_factor"),
+    ("reference_member=-1", "reference_member"),
+    ("reference_member=2", "reference_member"),  # a member is a reference run
 ])
 def test_config_errors_name_the_key(override, key):
     with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
         build_simulation(compose_config(override))
+
+
+def test_resolution_factor_scales_the_fixed_mesh_only():
+    base, _ = build_simulation(compose_config("scene=solo_dancer", "mode=nonadaptive"))
+    half, _ = build_simulation(compose_config("scene=solo_dancer", "mode=nonadaptive", "resolution_factor=0.5"))
+    n = compose_config("scene=solo_dancer").scene.scales.small.resolution
+    # the circle skirt's faces grow with the square of its segments around
+    assert half.mesh.n_faces < base.mesh.n_faces and round(n * 0.5) == 16
+    assert half.mesh.n_faces == pytest.approx(base.mesh.n_faces * (16 / n) ** 2, rel=0.15)
+    for extra in (("mode=adaptive",), ("+point=reference",)):
+        with pytest.raises(ConfigError, match="resolution_factor: scales the fixed mesh"):
+            build_simulation(compose_config("scene=solo_dancer", "resolution_factor=2", *extra))
+
+
+def test_reference_members_start_from_their_own_jitter():
+    """Member K of a reference ensemble is the reference with the scene's seed + 1000 K: a distinct
+    initial state for each member, the same for the same member."""
+    import numpy as np
+
+    point = {0: "+point=reference", 1: "+point=member/1", 2: "+point=member/2"}
+    x = {k: build_simulation(compose_config("scene=solo_dancer", p))[0].mesh.node_x for k, p in point.items()}
+    again = build_simulation(compose_config("scene=solo_dancer", "+point=member/1"))[0].mesh.node_x
+    assert np.array_equal(x[1], again)
+    assert not np.array_equal(x[0], x[1]) and not np.array_equal(x[1], x[2])
+    assert np.abs(x[1] - x[0]).max() < 1e-3  # sub-millimetre jitter: the same garment
 
 
 @pytest.mark.parametrize("override, group", [("scene=nope", "scene"), ("material=silk", "material"),

@@ -303,6 +303,48 @@ def _copy_with(src: Path, dst: Path, edit=None) -> Path:
     return dst
 
 
+def _shifted_member(ref: Path, dst: Path, dx: float) -> Path:
+    """A copy of `ref` whose every state has the cloth moved by dx metres along x: a member of an
+    ensemble that differs from `ref` by a known amount."""
+    shutil.copytree(ref, dst)
+    for f in (dst / "states").glob("frame_*.npz"):
+        s = load_state(f)
+        s["node_x"] = s["node_x"] + [dx, 0.0, 0.0]
+        np.savez(f, **{k: v for k, v in s.items() if k != "restart"})
+    return dst
+
+
+def test_reference_ensemble_gives_mean_interval_and_chaos_floor(runs, tmp_path, capsys):
+    from experiments.accuracy import FLOOR_SATURATION, evaluate_runs, main
+
+    run, ref = runs
+    members = [ref, _shifted_member(ref, tmp_path / "m1", 0.03), _shifted_member(ref, tmp_path / "m2", -0.03)]
+    single = [evaluate_runs([run], m, resolution_scale=0.25)[0] for m in members]
+    table = evaluate_runs([run], members, resolution_scale=0.25)[0]
+    assert table["members"].tolist() == [3] * 4
+    # each column the mean over the members; the interval brackets it
+    mean = np.mean([t["error_px"] for t in single], axis=0)
+    assert np.allclose(table["error_px"], mean)
+    assert np.all(table["error_lo_px"] <= table["error_px"] + ROUNDOFF)
+    assert np.all(table["error_px"] <= table["error_hi_px"] + ROUNDOFF)
+    # the floor: the median error between pairs of members, each pair measured as a run against a reference
+    pair = lambda a, b: evaluate_runs([a], b, resolution_scale=0.25)[0]["error_px"].to_numpy()  # noqa: E731
+    floors = np.median([pair(members[1], members[0]), pair(members[2], members[0]), pair(members[2], members[1])],
+                       axis=0)
+    assert np.allclose(table["floor_px"], floors) and np.all(table["floor_px"] > 0)
+    assert np.allclose(table["error_ratio"], table["error_px"] / table["floor_px"])
+    # one member: no floor
+    assert single[0]["floor_px"].isna().all() and single[0]["members"].tolist() == [1] * 4
+    run = _copy_with(run, tmp_path / "run")
+    assert main([str(run), "--reference", *map(str, members), "--resolution-scale", "0.25"]) == 0
+    summary = json.loads((run / "accuracy.json").read_text())
+    assert summary["members"] == 3 and len(summary["reference"]) == 3
+    f = table["floor_px"].to_numpy()
+    sat = int(table["frame"][np.flatnonzero(f >= FLOOR_SATURATION * f.max())[0]])
+    assert summary["floor_saturation_frame"] == sat
+    assert "floor" in capsys.readouterr().out
+
+
 @pytest.mark.parametrize("edit, message", [
     (lambda c: c["camera"]["camera"].update(fov_y_deg=30.0), r"camera config differs .* camera\.camera\.fov_y_deg"),
     (lambda c: c["scene"].update(name="flag"), r"scene 'sheet_on_sphere' differs from the reference's 'flag'"),

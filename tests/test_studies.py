@@ -125,11 +125,13 @@ def _completed(sweep: Path) -> list[Path]:
 
 def test_joblib_multirun_with_study_callback_measures_and_aggregates(tmp_path):
     """The default launcher runs a 3-run study (reference, adaptive, viewdep) in 2 processes; its
-    callback writes accuracy against the reference and the study's tables."""
+    callback writes accuracy and the re-synchronised error against the reference, and the study's
+    tables."""
     sweep = _multirun(tmp_path, "camera=sheet_half", "+point=reference,adaptive,viewdep", "study=tiny",
                       "hydra.launcher.n_jobs=2",  # two at once: each with half of the cores
                       "output.states_every=1",  # a study that measures accuracy asks for the states
-                      "+hydra.callbacks.study._target_=experiments.callbacks.StudyCallback")
+                      "+hydra.callbacks.study._target_=experiments.callbacks.StudyCallback",
+                      "+hydra.callbacks.study.sync={every: 1, horizon: 1, resolution_scale: 0.25}")
     runs = _completed(sweep)
     assert len(runs) == 3
     cfgs = [yaml.safe_load((r / "config.yaml").read_text()) for r in runs]
@@ -139,12 +141,26 @@ def test_joblib_multirun_with_study_callback_measures_and_aggregates(tmp_path):
         assert acc.exists() != bool(c["reference"]), f"{r.name}: accuracy against the reference, except the reference"
         if acc.exists():
             assert json.loads(acc.read_text())["frames"] >= 2
+        sync = json.loads((r / "sync.json").read_text())  # the reference too: its restart measured
+        assert sync["windows"] >= 2 and sync["horizon"] == 1
+        if c["reference"]:
+            assert sync["sync_error_px_mean"] < 1e-3  # restarted from its own states: its own continuation
     from experiments.aggregate import load_runs
     loaded = load_runs([sweep])
     assert len(loaded.runs) == 3 and not loaded.problems
     assert (sweep / "figures").is_dir() and any((sweep / "figures").iterdir())
     threads = {json.loads((r / "manifest.json").read_text())["numba_threads"] for r in runs}
     assert threads == {threads_per_run(os.cpu_count(), 2)}
+
+
+def test_a_study_callback_with_unknown_sync_options_is_refused():
+    from experiments.callbacks import StudyCallback
+
+    assert StudyCallback(sync={"horizon": 4}).sync["every"] == 10  # the defaults for what is not given
+    with pytest.raises(ValueError, match=r"unknown option\(s\) \['horizn'\]"):
+        StudyCallback(sync={"horizn": 4})
+    with pytest.raises(ValueError, match="--horizon must be an integer >= 1"):
+        StudyCallback(sync={"horizon": 0})
 
 
 def test_submitit_local_launcher(tmp_path):
