@@ -9,7 +9,8 @@ into each RUN_DIR:
 
 * ``accuracy.parquet``: one row per frame, columns frame, error_px, silhouette_px, surface_px,
   cloth_px_run, cloth_px_ref, iou, offscreen_distance_m (definitions: cloth.eval.screenspace),
-  and error_lo_px, error_hi_px, floor_px, error_ratio, members (a reference ensemble, below);
+  and error_lo_px, error_hi_px, floor_px, error_ratio, members (a reference ensemble, below),
+  popping_px (the run against itself: popping within a shot, cloth.eval.screenspace);
 * ``accuracy.json``: ``<column>_mean`` and ``<column>_max`` of every numeric column (NaN frames
   left out; null when a column has no value), ``reference`` (the reference folder), ``frames``
   (frames evaluated), ``resolution`` ([width, height] of the rendered images),
@@ -41,7 +42,7 @@ import pandas as pd
 from omegaconf import OmegaConf
 
 from cloth.eval import screenspace
-from cloth.eval.screenspace import frame_errors, offscreen_distance, render_state
+from cloth.eval.screenspace import frame_errors, offscreen_distance, popping, render_state
 from cloth.io.manifest import write_json_atomic, write_parquet_atomic
 from cloth.io.states import load_state, merge_states
 from cloth.view.camera import ViewError
@@ -51,7 +52,7 @@ from cloth.view.paths import path_from_config
 # chaos floor (median error between pairs of members; NaN with one member), error / floor, members.
 ENSEMBLE_COLUMNS = ("error_lo_px", "error_hi_px", "floor_px", "error_ratio", "members")
 COLUMNS = ("frame", "error_px", "silhouette_px", "surface_px", "cloth_px_run", "cloth_px_ref", "iou",
-           "offscreen_distance_m", *ENSEMBLE_COLUMNS)
+           "offscreen_distance_m", *ENSEMBLE_COLUMNS, "popping_px")
 BOOTSTRAP = 2000  # resamples for the 90 % intervals (seeded: the same numbers every time)
 # The floor has saturated at the first frame where it reaches this fraction of its largest value:
 # from there on, two members of the ensemble are as different as two unrelated runs of the scene.
@@ -203,6 +204,11 @@ def _ref_list(ref_dir) -> list[Path]:
     return refs
 
 
+def _shot(path, t: float) -> int:
+    """Index of the shot of a camera path at time t (the number of cuts at or before it)."""
+    return sum(1 for c in getattr(path, "cuts", ()) if c <= t + TIME_TOL_S)
+
+
 def bootstrap_mean_interval(values, resamples: int = BOOTSTRAP, seed: int = 0) -> tuple[float, float]:
     """90 % percentile-bootstrap interval of the mean of `values` (NaN left out; (nan, nan) if none)."""
     v = np.asarray(values, dtype=np.float64)
@@ -235,7 +241,8 @@ def evaluate_runs(run_dirs, ref_dir, resolution_scale: float = 1.0) -> list[pd.D
     except (ViewError, KeyError, TypeError, ValueError) as exc:
         raise AccuracyError(f"camera config cannot be built: {exc}") from None
     rows = [[] for _ in run_dirs]
-    numeric = [c for c in COLUMNS if c not in ("frame", *ENSEMBLE_COLUMNS)]
+    recent = [[] for _ in run_dirs]  # each run's last two (frame, shot, image): popping needs three
+    numeric = [c for c in COLUMNS if c not in ("frame", "popping_px", *ENSEMBLE_COLUMNS)]
     for frame in sorted(set().union(*frames)):
         members = [_load(states[frame]) for states in ref_states]
         ref_img = {}  # the members' images under each distinct camera (runs share one path)
@@ -254,6 +261,12 @@ def evaluate_runs(run_dirs, ref_dir, resolution_scale: float = 1.0) -> list[pd.D
                          for b in ref_img[camera][k + 1:]]
                 floor[camera] = float(np.median(pairs)) if pairs else math.nan
             run_img = render_state(camera, run, resolution_scale)
+            shot = _shot(paths[i], members[0]["time"])
+            if len(recent[i]) == 2:
+                (f0, s0, im0), (f1, s1, im1) = recent[i]
+                if (f0, f1) == (frame - 2, frame - 1) and s0 == s1 == shot:
+                    rows[i][-1]["popping_px"] = popping(im0, im1, run_img)
+            recent[i] = [*recent[i][-1:], (frame, shot, run_img)]
             per_member = []
             for m, img in zip(members, ref_img[camera]):
                 off, _ = offscreen_distance(camera, run["node_x"], m["node_x"], m["face_nodes"])
@@ -265,7 +278,7 @@ def evaluate_runs(run_dirs, ref_dir, resolution_scale: float = 1.0) -> list[pd.D
             lo, hi = bootstrap_mean_interval([e["error_px"] for e in per_member], seed=frame)
             f = floor[camera]
             row.update(error_lo_px=lo, error_hi_px=hi, floor_px=f, members=len(members),
-                       error_ratio=row["error_px"] / f if f > 0 else math.nan)
+                       error_ratio=row["error_px"] / f if f > 0 else math.nan, popping_px=math.nan)
             rows[i].append(row)
     return [pd.DataFrame(r, columns=list(COLUMNS)).astype({"frame": np.int64}) for r in rows]
 
@@ -292,11 +305,13 @@ def floor_saturation_frame(table: pd.DataFrame) -> int | None:
     return int(table["frame"].iloc[k])
 
 
-def summarize(table: pd.DataFrame, ref_dir, resolution, resolution_scale: float) -> dict:
+def summarize(table: pd.DataFrame, ref_dir, resolution, resolution_scale: float, remeshed=None) -> dict:
     """accuracy.json: <column>_mean and <column>_max of every numeric column, reference (the folder,
     or the list of an ensemble's members), members, floor_saturation_frame, error_ratio_before_saturation_mean
     (the mean ratio over the frames before it: where the floor is not yet "two different skirts"),
-    frames, resolution, resolution_scale, definition."""
+    popping_remesh_px_mean / popping_still_px_mean (popping over the frames whose remesh changed
+    the mesh and over the others, from `remeshed`: frame -> count of the run's records; None
+    without), frames, resolution, resolution_scale, definition."""
     out = {}
     for c in table.columns:
         if pd.api.types.is_numeric_dtype(table[c]):
@@ -307,6 +322,11 @@ def summarize(table: pd.DataFrame, ref_dir, resolution, resolution_scale: float)
     out["floor_saturation_frame"] = sat
     out["error_ratio_before_saturation_mean"] = (
         _stat(table["error_ratio"][(table["frame"] < sat).to_numpy()], np.mean) if sat is not None else None)
+    out["popping_remesh_px_mean"] = out["popping_still_px_mean"] = None
+    if remeshed is not None and "popping_px" in table.columns:
+        changed = table["frame"].map(remeshed).fillna(0).to_numpy() > 0
+        out["popping_remesh_px_mean"] = _stat(table["popping_px"][changed], np.mean)
+        out["popping_still_px_mean"] = _stat(table["popping_px"][~changed], np.mean)
     out.update(reference=str(refs[0].resolve()) if len(refs) == 1 else [str(r.resolve()) for r in refs],
                members=len(refs), frames=int(len(table)),
                resolution=[int(resolution[0]), int(resolution[1])], resolution_scale=float(resolution_scale),
@@ -324,7 +344,13 @@ def image_resolution(run_dir, resolution_scale: float) -> tuple[int, int]:
 def write_accuracy(run_dir, table: pd.DataFrame, ref_dir, resolution_scale: float = 1.0) -> dict:
     """Write accuracy.parquet and accuracy.json into `run_dir` (atomically); returns the summary."""
     run_dir = Path(run_dir)
-    summary = summarize(table, ref_dir, image_resolution(run_dir, resolution_scale), resolution_scale)
+    remeshed = None
+    try:
+        rec = pd.read_parquet(run_dir / "frames.parquet", columns=["frame", "remeshed"])
+        remeshed = dict(zip(rec["frame"].astype(int), rec["remeshed"]))
+    except Exception:  # noqa: BLE001 - no records, or records without remeshing: popping is not split
+        remeshed = None
+    summary = summarize(table, ref_dir, image_resolution(run_dir, resolution_scale), resolution_scale, remeshed)
     write_parquet_atomic(run_dir / "accuracy.parquet", table)
     write_json_atomic(run_dir / "accuracy.json", summary)
     return summary

@@ -61,7 +61,8 @@ SWEPT = {"nu_out": "mode.view.nu_out", "margin": "mode.view.margin", "T": "mode.
 SWEPT_COLUMNS = ("nu_out", "margin", "T", "anticipation", "l_min_px", "buckling_k", "buckling_mode",
                  "resolution_factor")
 ACCURACY_KEYS = ("error_px_mean", "error_px_max", "silhouette_px_mean", "surface_px_mean", "iou_mean",
-                 "offscreen_distance_m_mean")
+                 "offscreen_distance_m_mean", "popping_px_mean", "popping_remesh_px_mean", "popping_still_px_mean",
+                 "floor_px_mean", "error_ratio_mean", "error_ratio_before_saturation_mean", "floor_saturation_frame")
 # sync.json (experiments.sync, the re-synchronised error) -> runs table column
 SYNC_KEYS = {"sync_error_px_mean": "sync_error_px_mean", "sync_error_px_lo": "sync_error_px_lo",
              "sync_error_px_hi": "sync_error_px_hi", "sync_error_px_cut_mean": "sync_error_px_cut_mean",

@@ -27,7 +27,7 @@ import yaml
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
-from experiments.accuracy import evaluate_runs, write_accuracy
+from experiments.accuracy import AccuracyError, evaluate_runs, write_accuracy
 from experiments.sync import BEFORE_CUT, EVERY, HORIZON, RESOLUTION_SCALE, check_options, write_sync
 from experiments.sync import evaluate_run as evaluate_sync
 
@@ -48,9 +48,9 @@ def measure_accuracy(sweep_dir: Path, log=print, sync: dict | None = None) -> in
     """Measure every completed run against the reference of its scene and seed in `sweep_dir`: its
     reference run, or the ensemble of its reference runs (members 0, 1, ...: conf/point/member/K)
     with their chaos floor. Returns how many runs were measured (0 when the study has no
-    reference). `sync` (every, horizon, before_cut, resolution_scale: experiments.sync's options)
-    also measures the re-synchronised error of those runs and of the reference (member 0), which
-    restarted from its own states measures the restart itself (~0)."""
+    reference). `sync` (every, horizon, before_cut, resolution_scale: experiments.sync's options;
+    reference: bool) also measures the re-synchronised error of those runs and, with `reference`,
+    of the reference (member 0), which restarted from its own states measures the restart itself (~0)."""
     runs = run_folders(sweep_dir)
     cfgs = {r: yaml.safe_load((r / "config.yaml").read_text()) for r in runs}
     ensembles: dict[tuple, list[Path]] = {}
@@ -80,9 +80,15 @@ def measure_accuracy(sweep_dir: Path, log=print, sync: dict | None = None) -> in
                 write_accuracy(run, table, members if len(members) > 1 else ref)
                 measured += 1
         if sync is not None and (cfgs[ref].get("reference_member") or 0) == 0:
-            for run in [ref, *targets]:
+            opts = {k: v for k, v in sync.items() if k != "reference"}
+            for run in ([ref] if sync.get("reference", True) else []) + targets:
                 log(f"sync: {run.name} restarted from {ref.name}'s states")
-                write_sync(run, evaluate_sync(run, ref, **sync), ref, **sync)
+                try:
+                    table = evaluate_sync(run, ref, **opts)
+                except AccuracyError as exc:  # e.g. a run too short for a window: the others go on
+                    log(f"sync: {run.name} not measured: {exc}")
+                    continue
+                write_sync(run, table, ref, **opts)
     return measured
 
 
@@ -106,17 +112,22 @@ class StudyCallback(Callback):
 
     def __init__(self, accuracy: bool = True, figures: bool = True, sync=None) -> None:
         """`sync`: None, or the options of the re-synchronised error (every, horizon, before_cut,
-        resolution_scale; experiments.sync defaults for those not given)."""
+        resolution_scale; experiments.sync defaults for those not given) and `reference` (default
+        true: also the reference restarted from its own states, which measures the restart at
+        the cost of the reference's frames again)."""
         self.accuracy, self.figures = bool(accuracy), bool(figures)
         self.sync = None
         if sync is not None:
-            opts = {"every": EVERY, "horizon": HORIZON, "before_cut": BEFORE_CUT, "resolution_scale": RESOLUTION_SCALE}
+            opts = {"every": EVERY, "horizon": HORIZON, "before_cut": BEFORE_CUT, "resolution_scale": RESOLUTION_SCALE,
+                    "reference": True}
             unknown = set(sync) - set(opts)
             if unknown:
                 raise ValueError(f"hydra.callbacks.study.sync: unknown option(s) {sorted(unknown)}; "
                                  f"known: {sorted(opts)}")
             opts.update({k: sync[k] for k in sync})
             check_options(opts["every"], opts["horizon"], opts["before_cut"], opts["resolution_scale"])
+            if not isinstance(opts["reference"], bool):
+                raise ValueError(f"hydra.callbacks.study.sync.reference: true or false, got {opts['reference']!r}")
             self.sync = opts
 
     def on_multirun_end(self, config: DictConfig, **kwargs) -> None:

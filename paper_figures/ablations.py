@@ -9,9 +9,12 @@ faces, ballooning of out-of-view cloth (offscreen_distance_m of accuracy.json, m
 per frame per variant, and ballooning over time when accuracy.parquet is there.
 -> ablation_buckling.png/.pdf, ablation_buckling.csv/.md.
 
-Anticipation: viewdep runs that differ only in mode.view.anticipation (the ablation_anticipation
-study's when present): faces, faces in view and screen-space error over time with the camera
-cuts marked, and per variant the mean error over the CUT_WINDOW_FRAMES frames from each cut.
+Anticipation: viewdep runs that differ only in their anticipation (off, or on with its window T;
+the ablation_anticipation study's when present): faces, faces in view, screen-space error and
+popping over time with the camera cuts marked; per variant the mean error and popping over the
+CUT_WINDOW_FRAMES frames from each cut, and the re-synchronised error of the windows that start
+before a cut and end after it (sync_error_px_cut_mean of sync.json: what refining before the
+cut buys on screen), beside faces and simulation time per frame (what it costs).
 -> ablation_anticipation.png/.pdf, ablation_anticipation.csv/.md.
 """
 
@@ -27,8 +30,8 @@ import pandas as pd
 from .common import RunSet, Skip, frame_times, one_factor, save_figure, script_main, study_or_all, write_table
 
 CUT_WINDOW_FRAMES = 10  # frames from a cut over which 'error after the cut' is averaged (T = 5 frames, twice)
-BUCKLING_OTHERS = ("nu_out", "margin", "T", "anticipation")
-ANTICIPATION_OTHERS = ("nu_out", "margin", "T", "buckling_k", "buckling_mode")
+BUCKLING_OTHERS = ("nu_out", "margin", "T", "anticipation", "l_min_px")
+ANTICIPATION_OTHERS = ("nu_out", "margin", "l_min_px", "buckling_k", "buckling_mode")
 BUCKLING_ORDER = ("none", "uniform", "adaptive")
 BUCKLING_COLORS = {"none": "tab:red", "uniform": "tab:gray", "adaptive": "tab:green"}
 
@@ -105,9 +108,9 @@ def buckling(runset: RunSet, out) -> list[Path]:
         table, out, "ablation_buckling", "Buckling compensation ablation (the paper's Fig. 6)")
 
 
-def _after_cut(runset: RunSet, r, cuts) -> float:
-    """Mean error_px over the CUT_WINDOW_FRAMES frames from each cut (NaN without accuracy)."""
-    got = _per_frame(runset, r["run"], "error_px")
+def _after_cut(runset: RunSet, r, cuts, column: str = "error_px") -> float:
+    """Mean of a per-frame column over the CUT_WINDOW_FRAMES frames from each cut (NaN without it)."""
+    got = _per_frame(runset, r["run"], column)
     if got is None or not cuts:
         return np.nan
     fr, err = got
@@ -121,38 +124,54 @@ def _after_cut(runset: RunSet, r, cuts) -> float:
     return float(vals.mean()) if len(vals) else np.nan
 
 
+def lead_label(r) -> str:
+    """'off', or 'T=<frames>' for a run with anticipation."""
+    return f"T={r['T']:g}" if bool(r["anticipation"]) else "off"
+
+
 def anticipation(runset: RunSet, out) -> list[Path]:
     runs = study_or_all(runset.runs, "ablation_anticipation")
     vd = runs[(runs["mode"] == "viewdep") & runs["anticipation"].notna()] if len(runs) else runs
     if vd.empty:
         raise Skip("anticipation: no viewdep runs")
-    pts = pd.concat([one_factor(g, "anticipation", ANTICIPATION_OTHERS) for _, g in vd.groupby(["scene", "scale"])])
+    vd = vd.assign(lead=[lead_label(r) for _, r in vd.iterrows()])
+    pts = pd.concat([one_factor(g, "lead", ANTICIPATION_OTHERS) for _, g in vd.groupby(["scene", "scale"])])
     if pts.empty:
-        raise Skip("anticipation: no viewdep runs that differ only in mode.view.anticipation")
-    pts = pts.sort_values(["scene", "scale", "anticipation"], ascending=[True, True, False])
-    labels = [("with" if bool(r.anticipation) else "without") + " anticipation"
+        raise Skip("anticipation: no viewdep runs that differ only in their anticipation (mode.view.anticipation, T)")
+    pts = pts.assign(_order=[-1.0 if lead == "off" else float(T) for lead, T in zip(pts["lead"], pts["T"])])
+    pts = pts.sort_values(["scene", "scale", "_order"]).drop(columns="_order")
+    labels = [("without anticipation" if r.lead == "off" else f"anticipation {r.lead} frames")
               + (f" ({r.scene})" if pts["scene"].nunique() > 1 else "") for r in pts.itertuples()]
     cuts = sorted({c for cs in pts["camera_cuts_s"] for c in cs})
+    col = lambda name: pts[name].to_numpy() if name in pts.columns else np.full(len(pts), np.nan)  # noqa: E731
     table = pd.DataFrame({"scene": pts["scene"].to_numpy(), "scale": pts["scale"].to_numpy(),
-                          "anticipation": pts["anticipation"].astype(bool).to_numpy(), "run": pts["run"].to_numpy(),
+                          "anticipation": pts["lead"].to_numpy(), "run": pts["run"].to_numpy(),
                           "faces_mean": pts["faces_mean"].to_numpy(), "time_mean_s": pts["time_mean_s"].to_numpy(),
+                          "faces_in_view_after_cut": [_after_cut(runset, r, r["camera_cuts_s"], "faces_in_view")
+                                                      for _, r in pts.iterrows()],
                           "error_px_mean": pts["error_px_mean"].to_numpy(),
                           "error_px_after_cut_mean": [_after_cut(runset, r, r["camera_cuts_s"])
-                                                      for _, r in pts.iterrows()]})
-    fig, axes = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
+                                                      for _, r in pts.iterrows()],
+                          "sync_error_px_cut_mean": col("sync_error_px_cut_mean"),
+                          "popping_px_mean": col("popping_px_mean"),
+                          "popping_px_after_cut_mean": [_after_cut(runset, r, r["camera_cuts_s"], "popping_px")
+                                                        for _, r in pts.iterrows()]})
+    fig, axes = plt.subplots(4, 1, figsize=(8, 10), sharex=True)
     _plot_over_time(axes[0], runset, pts, "faces", labels, "faces")
     _plot_over_time(axes[1], runset, pts, "faces_in_view", labels, "faces in view")
     _plot_over_time(axes[2], runset, pts, "error_px", labels, "screen-space error (px)")
+    _plot_over_time(axes[3], runset, pts, "popping_px", labels, "popping (px)")
     for ax in axes:
         for c in cuts:
             ax.axvline(c, color="0.2", ls=":", lw=1.0)
-    axes[2].set_xlabel("simulated time (s); dotted: camera cuts")
+    axes[3].set_xlabel("simulated time (s); dotted: camera cuts")
     fig.suptitle("Temporal anticipation of camera cuts (the paper's Fig. 3)")
     fig.tight_layout()
     return save_figure(fig, out, "ablation_anticipation") + write_table(
         table, out, "ablation_anticipation",
-        f"Anticipation ablation (the paper's Fig. 3); error after a cut: mean over {CUT_WINDOW_FRAMES} frames "
-        f"from each cut at {', '.join(f'{c:g} s' for c in cuts) or '(no cut)'}")
+        f"Anticipation ablation (the paper's Fig. 3); after a cut: mean over {CUT_WINDOW_FRAMES} frames "
+        f"from each cut at {', '.join(f'{c:g} s' for c in cuts) or '(no cut)'}; sync_error_px_cut_mean: the "
+        f"re-synchronised error of the windows that start before a cut and end after it")
 
 
 def make(runset: RunSet, out, paper_timings=None, log=print) -> list[Path]:

@@ -32,7 +32,7 @@ PARAMETERS = {
     "T": ("T", "anticipation window T (frames, eq 4)", False, 5.0),
     "margin": ("margin", "margin m (metres, eq 3)", False, 0.4),
 }
-OTHERS = ("nu_out", "margin", "T", "anticipation", "buckling_k", "buckling_mode")
+OTHERS = ("nu_out", "margin", "T", "anticipation", "l_min_px", "buckling_k", "buckling_mode")
 
 
 def sweep_points(runs: pd.DataFrame, param: str) -> pd.DataFrame:

@@ -425,12 +425,16 @@ def test_paper_figures_write_every_expected_file(tmp_path, capsys):
     assert 4 + CUT_WINDOW_FRAMES <= n, "the window after the cut must fit in the runs"
     t = np.arange(1, n + 1) * FRAME_TIME_S
     after = (t >= CUTS_S[0] - 1e-9) & (t < CUTS_S[0] + CUT_WINDOW_FRAMES * FRAME_TIME_S - 1e-9)
-    for on, err in ((True, np.full(n, 2.5)), (False, np.where(after, 5.0, 2.5))):
-        write_run(root / "anticipation" / f"vd_{on}", "solo_dancer", "viewdep", np.full(n, 20), np.full(n, 12),
-                  np.full(n, 0.5), study="ablation_anticipation", view={"anticipation": on}, camera_cuts=CUTS_S,
-                  extra_frames={"faces_in_view": np.full(n, 9)},
-                  accuracy={"error_px_mean": float(err.mean())},
-                  accuracy_frames={"frame": np.arange(1, n + 1), "error_px": err})
+    for on, T, err, cut_sync in ((True, 5, np.full(n, 2.5), 1.0), (False, 5, np.where(after, 5.0, 2.5), 4.0),
+                                 (True, 2, np.where(after, 3.0, 2.5), 2.0)):
+        write_run(root / "anticipation" / f"vd_{on}_{T}", "solo_dancer", "viewdep", np.full(n, 20), np.full(n, 12),
+                  np.full(n, 0.5), study="ablation_anticipation", view={"anticipation": on, "anticipation_frames": T},
+                  camera_cuts=CUTS_S, extra_frames={"faces_in_view": np.full(n, 9)},
+                  accuracy={"error_px_mean": float(err.mean()), "popping_px_mean": 0.1},
+                  accuracy_frames={"frame": np.arange(1, n + 1), "error_px": err,
+                                   "popping_px": np.where(after, 0.3, 0.1)},
+                  sync={"sync_error_px_mean": 1.0, "sync_error_px_lo": 0.9, "sync_error_px_hi": 1.1,
+                        "sync_error_px_cut_mean": cut_sync})
     broken = root / "t1" / "3_broken"
     broken.mkdir()
     (broken / "config.yaml").write_text("scene: {name: solo_dancer}\nmode: {name: viewdep}\n")
@@ -444,6 +448,7 @@ def test_paper_figures_write_every_expected_file(tmp_path, capsys):
     printed = capsys.readouterr()
     expected = {"runs.csv", "problems.txt", "table1.csv", "table1_paper.csv", "table1.md", "table1.tex",
                 "fig8_solo_dancer_small.png", "fig8_solo_dancer_small.pdf", "sweep_nu_out.png", "sweep_nu_out.pdf",
+                "sweep_T.png", "sweep_T.pdf",  # the anticipation runs at T = 2 and 5
                 "sweeps.csv", "sweeps.md", "ablation_buckling.png", "ablation_buckling.pdf", "ablation_buckling.csv",
                 "ablation_buckling.md", "ablation_anticipation.png", "ablation_anticipation.pdf",
                 "ablation_anticipation.csv", "ablation_anticipation.md", "pareto.png", "pareto.pdf", "pareto.csv",
@@ -460,6 +465,8 @@ def test_paper_figures_write_every_expected_file(tmp_path, capsys):
     assert len(t1) == 3 and abs(row(t1, mode="viewdep")["speedup"] - 2.0) <= EXACT_TOL
     # sweep: speed-up against the study's adaptive run (1.0 s per frame)
     sw = pd.read_csv(out / "sweeps.csv")
+    assert sw[sw["parameter"] == "T"]["value"].tolist() == [2.0, 5.0]  # the anticipation study's T runs
+    sw = sw[sw["parameter"] == "nu_out"]
     assert sw["value"].tolist() == [0.001, 0.01, 0.1]
     assert np.allclose(sw["speedup"], [1.0 / 0.25, 1.0 / 0.5, 1.0 / 0.8], rtol=0, atol=EXACT_TOL)
     # buckling: the three compensations in order, with their ballooning
@@ -468,8 +475,13 @@ def test_paper_figures_write_every_expected_file(tmp_path, capsys):
     assert ab["offscreen_distance_m_mean"].tolist() == [0.05, 0.01, 0.02]
     # anticipation: the error after the cut, by hand
     an = pd.read_csv(out / "ablation_anticipation.csv")
-    assert row(an, anticipation=True)["error_px_after_cut_mean"] == 2.5
-    assert row(an, anticipation=False)["error_px_after_cut_mean"] == 5.0
+    assert an["anticipation"].tolist() == ["off", "T=2", "T=5"]  # off first, then by the window
+    assert row(an, anticipation="T=5")["error_px_after_cut_mean"] == 2.5
+    assert row(an, anticipation="off")["error_px_after_cut_mean"] == 5.0
+    assert row(an, anticipation="T=2")["error_px_after_cut_mean"] == 3.0
+    assert an["sync_error_px_cut_mean"].tolist() == [4.0, 2.0, 1.0]
+    assert np.allclose(an["popping_px_after_cut_mean"], 0.3, rtol=0, atol=EXACT_TOL)
+    assert an["faces_in_view_after_cut"].tolist() == [9] * 3
     # Pareto over every run with accuracy (same scene): fastest is nu_out=0.001 (0.25 s, 4 px),
     # nu_out=0.01 at 0.5 s with 2 px dominates nu_out=0.1 (0.8 s, 3 px) and the anticipation (2.5, 3.75 px)
     # and buckling (3, 4, 5 px) runs at 0.5 s; adaptive (1 s, 0.5 px) is the most accurate.

@@ -24,6 +24,7 @@ from cloth.eval.screenspace import (
     frame_errors,
     occluder_mesh,
     offscreen_distance,
+    popping,
     rasterize,
     render_frame,
 )
@@ -205,6 +206,28 @@ def test_offscreen_distance_hand_case():
     assert n == 0 and np.isnan(d)
 
 
+# ---- popping ------------------------------------------------------------------------------------
+
+def _wall(depth: float, n: int = 2):
+    """A square 2 m wide facing a camera on the -y side, `depth` m in front of it."""
+    from cloth.core.mesh import grid_mesh
+    m = grid_mesh(2.0, 2.0, n, n, origin=(-1.0, depth, -1.0), axes=((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)))
+    return m.node_x, m.face_nodes
+
+
+def test_popping_is_zero_for_steady_or_uniform_motion_and_the_jump_of_a_one_frame_pop():
+    cam = Camera(position=(0.0, 0.0, 0.0), look_at=(0.0, 1.0, 0.0), up=(0.0, 0.0, 1.0), width=64, height=48)
+    img = {z: render_frame(cam, *_wall(z)) for z in (3.0, 3.03, 3.06)}
+    assert popping(img[3.0], img[3.0], img[3.0]) == 0.0
+    assert popping(img[3.0], img[3.03], img[3.06]) == pytest.approx(0.0, abs=1e-9)  # uniform motion
+    # a pop of 3 cm that lasts one frame: |z+ - 2 z + z-| f / z = 0.06 f / 3.03
+    assert popping(img[3.0], img[3.03], img[3.0]) == pytest.approx(0.06 * cam.focal_px / 3.03, rel=1e-6)
+    empty = render_frame(cam, np.zeros((0, 3)), np.zeros((0, 3), int))
+    assert np.isnan(popping(img[3.0], empty, img[3.0]))
+    with pytest.raises(ValueError, match="differ in size"):
+        popping(img[3.0], img[3.0], render_frame(cam, *_wall(3.0), resolution_scale=0.5))
+
+
 # ---- states ------------------------------------------------------------------------------------
 
 def test_state_round_trip_with_obstacles(tmp_path):
@@ -280,7 +303,11 @@ def test_accuracy_cli_writes_its_files(runs, tmp_path, capsys):
     assert summary["error_px_mean"] == pytest.approx(table["error_px"].mean())
     assert summary["error_px_max"] == pytest.approx(table["error_px"].max())
     assert summary["frames"] == 4 and summary["resolution"] == [320, 180]
-    assert summary["reference"] == str(ref.resolve()) and "screenspace-v1" in summary["definition"]
+    assert summary["reference"] == str(ref.resolve()) and "screenspace-v2" in summary["definition"]
+    # popping needs the frames on both sides: none at the first and last frame
+    pop = table["popping_px"].to_numpy()
+    assert np.isnan(pop[0]) and np.isnan(pop[-1]) and np.all(np.isfinite(pop[1:-1])) and np.all(pop[1:-1] >= 0)
+    assert summary["popping_still_px_mean"] is not None  # split by the run's remesh records
     assert "4 frames" in capsys.readouterr().out
 
 

@@ -48,6 +48,14 @@ features below a pixel can disappear. The occluders are the obstacles' display t
 Both sides of the cloth count alike (no back-face culling), shading and texture are ignored,
 and the two images share the camera, so a camera error is not measured.
 
+``popping_px`` (a run against itself: popping, the sudden jumps a remesh can put on screen), at
+frame t from the run's images at t - 1, t and t + 1, each under its own frame's camera and only
+when no camera cut falls between t - 1 and t + 1: the mean, over the pixels that show cloth in all
+three, of |z(t+1) - 2 z(t) + z(t-1)| * f / z(t), the temporal second difference of the visible
+depth as pixels at the depth of frame t. Smooth motion (the cloth's and the camera's) gives a
+small value that the modes share; a jump that lasts one frame gives its full size. NaN where the
+three images share no cloth pixel or the triple straddles a cut.
+
 ``offscreen_distance_m`` (ballooning of coarse out-of-view cloth, what buckling compensation is
 for): the mean, over the run's cloth nodes outside the camera frustum (distance to the frustum
 > 0), of their distance to the closest point of the reference cloth surface at the same frame.
@@ -65,7 +73,7 @@ from scipy.ndimage import distance_transform_edt
 from cloth.collision.nearest import point_mesh_distance
 from cloth.collision.obstacles import capsule_tessellation
 
-DEFINITION_VERSION = "screenspace-v1"
+DEFINITION_VERSION = "screenspace-v2"  # v2: popping_px
 
 EMPTY, CLOTH, OCCLUDER = 0, 1, 2  # values of ScreenImage.mesh_id
 OCCLUDER_RESOLUTION = 24  # segments around a capsule of the body: facet sag below 1% of its radius
@@ -288,6 +296,17 @@ def frame_errors(run: ScreenImage, ref: ScreenImage) -> dict:
         out["silhouette_px"] = float(d.mean())
     out["iou"] = float(I.sum() / n_union)
     return out
+
+
+def popping(prev: ScreenImage, now: ScreenImage, nxt: ScreenImage) -> float:
+    """popping_px at the middle frame of three consecutive images of a run (module docstring)."""
+    if not (prev.depth.shape == now.depth.shape == nxt.depth.shape):
+        raise ValueError("popping: the three images differ in size")
+    common = prev.cloth & now.cloth & nxt.cloth
+    if not common.any():
+        return float("nan")
+    z0, z1, z2 = prev.depth[common], now.depth[common], nxt.depth[common]
+    return float(np.mean(np.abs(z2 - 2.0 * z1 + z0) * (now.focal_px / now.scale) / z1))
 
 
 # ---- cloth out of view ------------------------------------------------------------------------
