@@ -41,7 +41,7 @@ from cloth.core.records import COLLISION_RECORD, PHASES, REMESH_RECORD, SIM_PHAS
 from cloth.core.scene import Scene
 from cloth.core.transfer import transfer_node_values
 from cloth.physics.assembly import SparsityPattern
-from cloth.physics.buckling import face_alpha
+from cloth.physics.buckling import compressive_energy, face_alpha
 from cloth.physics.forces import Bending, ForceTerm, Gravity, Membrane, Wind, element_families
 from cloth.physics.integrator import ContactConstraints, implicit_euler_step
 from cloth.physics.linsolve import SolverOptions
@@ -450,21 +450,23 @@ class Simulation:
 
     # ---- the record ------------------------------------------------------------------------
     def view_counts(self) -> dict:
-        """Faces in view (in the frustum and facing the camera), back-facing in frame, out of frame.
-
-        NaN without a camera. The same definitions as the view-dependent sizing (face centroids).
-        """
+        """Faces in view (in the frustum and facing the camera), back-facing in frame, out of frame,
+        and compressive_energy_out_j (cloth.physics.buckling.compressive_energy of the faces out
+        of the frame). NaN without a camera. The same definitions as the view-dependent sizing
+        (face centroids)."""
         nan = float("nan")
         if self.scene.camera is None:
             return {"faces_in_view": nan, "faces_back_facing": nan, "faces_out_of_frame": nan,
-                    "faces_compensated": nan}
+                    "faces_compensated": nan, "compressive_energy_out_j": nan}
         c, n = face_geometry(self.scene.mesh)
         d, front = face_view_data(self.scene.camera.camera_at(self.time), c, n)
         inside = d == 0
+        mu, lam = self.scene.material.lame()
         return {"faces_in_view": int(np.count_nonzero(inside & front)),
                 "faces_back_facing": int(np.count_nonzero(inside & ~front)),
                 "faces_out_of_frame": int(np.count_nonzero(~inside)),
-                "faces_compensated": self.faces_compensated if self.buckling is not None else 0}
+                "faces_compensated": self.faces_compensated if self.buckling is not None else 0,
+                "compressive_energy_out_j": compressive_energy(self.scene.mesh, mu, lam, np.flatnonzero(~inside))}
 
     def state_record(self) -> dict:
         """Counts, energies and quality of the current state."""
@@ -483,4 +485,5 @@ class Simulation:
             "elastic_energy_j": float(energy.get("membrane", 0.0) + energy.get("bending", 0.0)),
             "max_speed_m_s": float(np.sqrt(v2.max())),
             "min_face_quality": float(mesh.face_quality().min()),
+            **{k: v for probe in self.scene.probes for k, v in probe(mesh).items()},
         }

@@ -67,6 +67,10 @@ ACCURACY_KEYS = ("error_px_mean", "error_px_max", "silhouette_px_mean", "surface
 SYNC_KEYS = {"sync_error_px_mean": "sync_error_px_mean", "sync_error_px_lo": "sync_error_px_lo",
              "sync_error_px_hi": "sync_error_px_hi", "sync_error_px_cut_mean": "sync_error_px_cut_mean",
              "windows": "sync_windows", "horizon": "sync_horizon"}
+# Per-frame measures a scene declares (cloth.core.scene.Scene.probes) or the view gives, taken at
+# equilibrium: the mean over the last EQUILIBRIUM_FRAMES frames -> runs-table column <name>_final.
+SCENE_MEASURES = ("drape_coefficient", "folds", "hem_radius_mean_m", "compressive_energy_out_j")
+EQUILIBRIUM_FRAMES = 10
 STAT_COLUMNS = {"faces": "faces", "verts": "verts", "sim_s": "time"}  # frames column -> Table 1 name
 TABLE1_COLUMNS = ("scene", "scale", "mode", "variant", "frames", "faces_min", "faces_max", "faces_mean",
                   "verts_min", "verts_max", "verts_mean", "time_min_s", "time_max_s", "time_mean_s", "io_mean_s",
@@ -274,6 +278,8 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
     frames_requested, characters,
     faces/verts/time min/max/mean (time_*_s from sim_s), time_total_s, io_mean_s and wall_mean_s
     (I/O and the whole frame, beside the simulation time), time_<phase>_mean_s,
+    drape_mesh (ablation_buckling's mesh, '' elsewhere), <measure>_final of SCENE_MEASURES (mean
+    over the last EQUILIBRIUM_FRAMES frames; NaN where a run does not record it),
     size_min_fraction_mean / size_max_fraction_mean (faces at a sizing bound over faces, mean over
     the frames that remeshed) and edge_at_size_min_m (median over those frames; NaN without them),
     and accuracy.json's ACCURACY_KEYS plus accuracy_frames (NaN without accuracy), and sync.json's
@@ -326,6 +332,10 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
         row[f"{name}_min{unit}"] = float(frames[col].min())
         row[f"{name}_max{unit}"] = float(frames[col].max())
         row[f"{name}_mean{unit}"] = float(frames[col].mean())
+    row["drape_mesh"] = _text(cfg.get("drape_mesh"))
+    for name in SCENE_MEASURES:
+        v = frames[name].astype(float).tail(EQUILIBRIUM_FRAMES) if name in frames.columns else pd.Series(dtype=float)
+        row[f"{name}_final"] = float(v.mean()) if v.notna().any() else math.nan
     row["time_total_s"] = float(frames["sim_s"].sum())
     row["io_mean_s"] = float(frames["time_io_s"].mean()) if "time_io_s" in frames.columns else math.nan
     row["wall_mean_s"] = float(frames["wall_s"].mean()) if "wall_s" in frames.columns else math.nan

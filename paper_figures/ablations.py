@@ -27,7 +27,17 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from .common import RunSet, Skip, frame_times, one_factor, save_figure, script_main, study_or_all, write_table
+from .common import (
+    RunSet,
+    Skip,
+    frame_times,
+    latest,
+    one_factor,
+    save_figure,
+    script_main,
+    study_or_all,
+    write_table,
+)
 
 CUT_WINDOW_FRAMES = 10  # frames from a cut over which 'error after the cut' is averaged (T = 5 frames, twice)
 BUCKLING_OTHERS = ("nu_out", "margin", "T", "anticipation", "l_min_px")
@@ -74,8 +84,85 @@ def _plot_over_time(ax, runset, runs: pd.DataFrame, column: str, labels, ylabel:
     return drawn
 
 
+DRAPE_MESHES = ("fine", "coarse", "view-coarsened")
+
+
+def _drape_runs(runset: RunSet) -> pd.DataFrame:
+    runs = study_or_all(runset.runs, "ablation_buckling")
+    if runs.empty or "drape_coefficient_final" not in runs.columns:
+        return runs.iloc[0:0]
+    return runs[runs["drape_coefficient_final"].notna() & (runs["drape_mesh"] != "")]
+
+
+def drape(runset: RunSet, out) -> list[Path]:
+    """ablation_drape.*: buckling compensation on the drape test, per mesh and compensation: the
+    measures at equilibrium, and whether compensation moves each mesh's drape coefficient toward
+    the fine mesh's without compensation."""
+    runs = _drape_runs(runset)
+    if runs.empty:
+        raise Skip("drape: no runs of the drape test (scene cusick_drape, ablation_buckling)")
+    runs, _ = latest(runs.assign(compensation=runs.apply(_compensation_label, axis=1)),
+                     ("scene", "scale", "drape_mesh", "compensation", "seed"))
+    rows = []
+    for (scene, scale), g in runs.groupby(["scene", "scale"], sort=True):
+        med = g.groupby(["drape_mesh", "compensation"], sort=False).agg(
+            runs=("run", "size"), faces_mean=("faces_mean", "median"), time_mean_s=("time_mean_s", "median"),
+            drape_coefficient=("drape_coefficient_final", "median"), folds=("folds_final", "median"),
+            hem_radius_m=("hem_radius_mean_m_final", "median"),
+            compressive_energy_j=("compressive_energy_out_j_final", "median")).reset_index()
+        fine = med[(med["drape_mesh"] == "fine") & (med["compensation"] == "none")]
+        dc_fine = float(fine["drape_coefficient"].iloc[0]) if len(fine) else np.nan
+        for _, r in med.iterrows():
+            base = med[(med["drape_mesh"] == r["drape_mesh"]) & (med["compensation"] == "none")]
+            dc0 = float(base["drape_coefficient"].iloc[0]) if len(base) else np.nan
+            d, d0 = abs(r["drape_coefficient"] - dc_fine), abs(dc0 - dc_fine)
+            toward = bool(d < d0) if r["compensation"] != "none" and np.isfinite(d + d0) else None
+            rows.append({"scene": scene, "scale": scale, **r.to_dict(),
+                         "dc_minus_fine": r["drape_coefficient"] - dc_fine, "toward_fine": toward})
+    table = pd.DataFrame(rows)
+    order = {m: i for i, m in enumerate(DRAPE_MESHES)}
+    comp_order = {c: i for i, c in enumerate(COMPENSATIONS)}
+    table = table.sort_values(["scene", "scale", "drape_mesh", "compensation"],
+                              key=lambda c: c.map(order) if c.name == "drape_mesh" else
+                              (c.map(comp_order) if c.name == "compensation" else c)).reset_index(drop=True)
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4))
+    comps = [c for c in COMPENSATIONS if c in set(table["compensation"])]
+    x = np.arange(len(comps))
+    for m, mark in zip(DRAPE_MESHES, ("o", "s", "^")):
+        t = table[table["drape_mesh"] == m].set_index("compensation").reindex(comps)
+        for ax, col in zip(axes, ("drape_coefficient", "folds", "compressive_energy_j")):
+            ax.plot(x, t[col].to_numpy(float), marker=mark, label=m)
+    if np.isfinite(dc_fine):
+        axes[0].axhline(dc_fine, color="0.3", ls="--", lw=1, label="fine, no compensation")
+    for ax, ylabel in zip(axes, ("drape coefficient at equilibrium", "folds at equilibrium",
+                                 "compressive membrane energy out of view (J)")):
+        ax.set_xticks(x, comps)
+        ax.set_xlabel("compensation")
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle("Buckling compensation on the Cusick drape test (specimen out of the frustum)")
+    fig.tight_layout()
+    return save_figure(fig, out, "ablation_drape") + write_table(
+        table, out, "ablation_drape",
+        "Buckling compensation on the drape test, at equilibrium (last 10 frames; medians over seeds): "
+        "toward_fine = compensation brings the mesh's drape coefficient closer to the fine mesh's without it")
+
+
+COMPENSATIONS = ("none", "uniform", "k=1", "k=3", "k=10", "k=50")
+
+
+def _compensation_label(row) -> str:
+    if row["buckling_mode"] == "none" or not isinstance(row["buckling_mode"], str):
+        return "none"
+    return "uniform" if row["buckling_mode"] == "uniform" else f"k={row['buckling_k']:g}"
+
+
 def buckling(runset: RunSet, out) -> list[Path]:
     runs = study_or_all(runset.runs, "ablation_buckling")
+    drape_runs = _drape_runs(runset)
+    if len(drape_runs):  # the drape test's runs have their own table (drape)
+        runs = runs[~runs["run"].isin(drape_runs["run"])]
     vd = runs[runs["mode"] == "viewdep"] if len(runs) else runs
     if vd.empty:
         raise Skip("buckling: no viewdep runs")
@@ -177,7 +264,7 @@ def anticipation(runset: RunSet, out) -> list[Path]:
 def make(runset: RunSet, out, paper_timings=None, log=print) -> list[Path]:
     """ablation_buckling.* and ablation_anticipation.* (each when its runs are there)."""
     files, skipped = [], []
-    for fn in (buckling, anticipation):
+    for fn in (buckling, drape, anticipation):
         try:
             files += fn(runset, out)
         except Skip as exc:

@@ -69,6 +69,9 @@ class Scene:
     friction: float = 0.3  # Coulomb coefficient, cloth against obstacles and against itself
     camera: object | None = None  # a camera path (view-dependent issue), None if the scene has none
     notes: tuple = ()  # what a reader of the results must know (e.g. an effect the scene leaves out)
+    # Per-frame measures the scene declares: callables mesh -> {column: value}, added to every
+    # frame's record (e.g. the drape test's drape coefficient, cloth.eval.drape.DrapeProbe).
+    probes: tuple = ()
 
     def __post_init__(self) -> None:
         self.effects = frozenset(self.effects)

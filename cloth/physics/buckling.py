@@ -80,3 +80,20 @@ def face_alpha(area: np.ndarray, out_of_frustum: np.ndarray, params: BucklingPar
     if out.any():
         alpha[out] = 0.0 if params.mode == "uniform" else compression_factor(area[out], params.k)
     return alpha
+
+
+def compressive_energy(mesh, mu: float, lam: float, faces=None) -> float:
+    """J: the St. Venant-Kirchhoff membrane energy of the compressive principal Green strains
+    only, sum over `faces` (all if None) of A (mu (l1-^2 + l2-^2) + lam / 2 (l1- + l2-)^2), with
+    l- = min(l, 0) the principal strains (eq 9) and A the material area: the in-plane compression
+    a coarse mesh holds instead of buckling (what compensation removes out of the frustum)."""
+    idx = np.arange(mesh.n_faces) if faces is None else np.asarray(faces)
+    if idx.size == 0:
+        return 0.0
+    x = mesh.node_x[mesh.face_nodes[idx]]  # (F, 3, 3)
+    Ds = np.stack([x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]], axis=2)  # (F, 3, 2) world edges
+    F = Ds @ mesh.face_Dm_inv[idx]
+    E = 0.5 * (np.einsum("fki,fkj->fij", F, F) - np.eye(2))
+    neg = np.minimum(np.linalg.eigvalsh(E), 0.0)
+    density = mu * np.sum(neg ** 2, axis=1) + 0.5 * lam * np.sum(neg, axis=1) ** 2
+    return float(np.sum(mesh.face_area[idx] * density))

@@ -17,10 +17,11 @@ from cloth.collision.obstacles import Plane, Ramp, Sphere, Static
 from cloth.core.material import Material
 from cloth.core.mesh import MeshError, grid_mesh, merge_meshes
 from cloth.core.scene import Handle, Scene, SceneError, Wind
+from cloth.eval.drape import DrapeProbe
 from cloth.io.obj import ObjError, load_obj_sequence
 from cloth.scenes.bodies import moving_sphere_keyframes, skinned_mannequin_mesh
 from cloth.scenes.character import JOINTS, Dance, Karate, Mannequin
-from cloth.scenes.garments import circle_skirt, merge_garments, obj_garment, tube_skirt
+from cloth.scenes.garments import circle_skirt, merge_garments, obj_garment, tube_skirt, uniform_annulus_mesh
 
 
 def _check_resolution(name: str, resolution: int) -> None:
@@ -372,6 +373,41 @@ def karate(material: Material, *, resolution: int = 48, inner_radius: float = 0.
                             jitter=jitter, seed=seed, notes=notes, obstacle=obstacle)
 
 
+def cusick_drape(material: Material, *, resolution: int = 24, specimen_radius: float = 0.15,
+                 support_radius: float = 0.09, height: float = 0.6, frame_time: float = 0.04,
+                 steps_per_frame: int = 8, jitter: float = 1e-4, seed: int = 0,
+                 effects=("membrane", "bending", "gravity", "damping")) -> Scene:
+    """The Cusick drape test (ISO 9073-9, BS 5058): a flat circular specimen of `specimen_radius`
+    clamped between two discs of `support_radius` at `height` m, which drapes under gravity into
+    folds. The specimen is a disk with near-uniform edges of 2 pi support_radius / `resolution`
+    (a ring mesh, cloth.scenes.garments.uniform_annulus_mesh, around a hole far inside the
+    clamp); every node within the support's radius is pinned (the clamp), the rest starts flat
+    with a seeded sub-millimetre `jitter` (m) out of plane that picks where the folds form. Every
+    frame's record carries the drape measures (cloth.eval.drape: drape_coefficient, hem radius,
+    folds)."""
+    name = "cusick_drape"
+    _check_resolution(name, resolution)
+    _check_size(name, specimen_radius=specimen_radius, support_radius=support_radius, height=height)
+    if not support_radius < specimen_radius:
+        raise SceneError(f"scene {name!r}: support_radius ({support_radius} m) must be below specimen_radius "
+                         f"({specimen_radius} m): the specimen drapes over the support's edge")
+    if not jitter >= 0:
+        raise SceneError(f"scene {name!r}: jitter must be >= 0 m, got {jitter}")
+    edge = 2 * np.pi * support_radius / int(resolution)
+    hole = min(0.5 * edge, 0.25 * support_radius)
+    mesh = uniform_annulus_mesh(hole, specimen_radius - hole, edge, center=(0.0, 0.0, height))
+    r = np.linalg.norm(mesh.vert_u, axis=1)
+    clamped = np.zeros(mesh.n_nodes, dtype=bool)
+    clamped[mesh.vert_node[r <= support_radius * (1 + 1e-9)]] = True
+    if jitter > 0:
+        noise = jitter * np.random.default_rng(seed).standard_normal(mesh.n_nodes)
+        mesh.node_x[~clamped, 2] += noise[~clamped]
+    probe = DrapeProbe(center=(0.0, 0.0), support_radius=support_radius, specimen_radius=specimen_radius)
+    return Scene(name=name, mesh=mesh, material=material, effects=frozenset(effects), frame_time=frame_time,
+                 steps_per_frame=steps_per_frame, handles=[Handle(np.flatnonzero(clamped), Static())],
+                 probes=(probe,))
+
+
 def crowd_placement(count: int, spacing: float, columns: int, phase_step: float, heading_step: float,
                     phase_wrap: float = 1.0):
     """(positions (count, 3) m, phases (count,) s, headings (count,) rad) of a crowd on a stage:
@@ -420,7 +456,8 @@ CROWDS = {"multiple_dancers"}  # scenes whose builder makes one character of a c
 
 SCENES = {"hanging_sheet": hanging_sheet, "sheet_on_sphere": sheet_on_sphere, "flag": flag,
           "solo_dancer": solo_dancer, "karate": karate, "multiple_dancers": multiple_dancers,
-          "layered_sheets": layered_sheets, "crushed_sheet": crushed_sheet, "mesh_obstacle": mesh_obstacle}
+          "layered_sheets": layered_sheets, "crushed_sheet": crushed_sheet, "mesh_obstacle": mesh_obstacle,
+          "cusick_drape": cusick_drape}
 
 
 def build_scene(name: str, material: Material, **params) -> Scene:
