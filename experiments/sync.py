@@ -160,6 +160,29 @@ def bootstrap_interval(values: np.ndarray, resamples: int = BOOTSTRAP, seed: int
     return float(np.percentile(means, 5)), float(np.percentile(means, 95))
 
 
+def paired_difference_interval(a, b, resamples: int = BOOTSTRAP, seed: int = 0) -> tuple[float, float]:
+    """90 % bootstrap interval of the mean of a - b over windows both have (pandas Series indexed
+    by sync frame, or arrays of equal length): two runs restarted from the same states are
+    compared window by window, so the phase of the dance (which sets how large every run's error
+    is) cancels. (nan, nan) without a common finite window."""
+    if isinstance(a, pd.Series) and isinstance(b, pd.Series):
+        a, b = a.align(b, join="inner")
+    d = np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64)
+    return bootstrap_interval(d, resamples, seed)
+
+
+def read_windows(run_dir) -> pd.Series | None:
+    """sync_error_px of a run folder's sync.parquet indexed by sync_frame (None without one)."""
+    f = Path(run_dir) / "sync.parquet"
+    if not f.is_file():
+        return None
+    try:
+        t = pd.read_parquet(f, columns=["sync_frame", "sync_error_px"])
+    except (OSError, ValueError, KeyError):
+        return None
+    return t.set_index("sync_frame")["sync_error_px"].astype(float)
+
+
 def summarize(table: pd.DataFrame, ref_dir, every, horizon, before_cut, resolution_scale) -> dict:
     err = table["sync_error_px"].to_numpy(dtype=np.float64)
     ok = np.isfinite(err)

@@ -11,8 +11,10 @@ windows as error bars) where the runs have it, else the whole-run screen-space e
 
 Writes pareto.png/.pdf and pareto.csv/.md (every point; ``error`` names the measure). on_front
 marks the front: no other run of the same scene and scale is at least as fast and at least as
-accurate, and better in one; with intervals, a run is on it only when its interval lies wholly
-below the interval of every faster run (its extra time buys an error that is told apart).
+accurate, and better in one; and its extra time buys an error that is told apart from every
+faster run's: with the runs' windows (sync.parquet), the 90 % bootstrap interval of the mean
+difference over the windows both have (the same restarts: paired) lies below 0; else, with
+intervals, its interval lies wholly below the faster run's.
 """
 
 from __future__ import annotations
@@ -26,23 +28,44 @@ import numpy as np
 import pandas as pd
 
 from experiments.aggregate import MODES, baseline_for
+from experiments.sync import paired_difference_interval, read_windows
 
 from .common import MODE_MARKERS, MODE_NAMES, RunSet, Skip, color, save_figure, script_main, write_table
 
 
-def pareto_front(time_s, error, lo=None, hi=None) -> np.ndarray:
-    """on_front[i]: no point j has time_j <= time_i and error_j <= error_i with one of them <; with
-    intervals (lo, hi), also hi_i < lo_j for every j with time_j < time_i."""
+def pareto_front(time_s, error, lo=None, hi=None, better=None) -> np.ndarray:
+    """on_front[i]: no point j has time_j <= time_i and error_j <= error_i with one of them <; and
+    for every j with time_j < time_i, i's error is told apart as lower: better[i, j] when given
+    (a paired test), else hi_i < lo_j when intervals (lo, hi) are given."""
     t, e = np.asarray(time_s, float), np.asarray(error, float)
     dominated = ((t[None, :] <= t[:, None]) & (e[None, :] <= e[:, None])
                  & ((t[None, :] < t[:, None]) | (e[None, :] < e[:, None])))
     front = ~dominated.any(axis=1)
-    if lo is not None and hi is not None:
+    faster = t[None, :] < t[:, None]  # [i, j]: j is faster than i
+    if better is not None:
+        front &= ~(faster & ~np.asarray(better, bool)).any(axis=1)
+    elif lo is not None and hi is not None:
         lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-        faster = t[None, :] < t[:, None]  # [i, j]: j is faster than i
         apart = hi[:, None] < lo[None, :]  # [i, j]: i's interval wholly below j's
         front &= ~(faster & ~apart).any(axis=1)
     return front
+
+
+def paired_better(paths) -> np.ndarray | None:
+    """[i, j]: run i's re-synchronised error is lower than run j's, told apart by the 90 % bootstrap
+    interval of their difference over the windows both have (experiments.sync: the same restarts);
+    None unless every run has its windows."""
+    windows = [read_windows(p) for p in paths]
+    if any(w is None for w in windows):
+        return None
+    n = len(windows)
+    out = np.zeros((n, n), dtype=bool)
+    for i in range(n):
+        for j in range(n):
+            if i != j:
+                _, hi = paired_difference_interval(windows[i], windows[j])
+                out[i, j] = bool(hi < 0)
+    return out
 
 
 def _error_columns(g: pd.DataFrame) -> tuple[str, pd.Series, pd.Series | None, pd.Series | None]:
@@ -65,7 +88,8 @@ def pareto_table(runs: pd.DataFrame) -> pd.DataFrame:
     rows = []
     for (scene, scale), g in pts.groupby(["scene", "scale"], sort=True):
         measure, err, lo, hi = _error_columns(g)
-        front = pareto_front(g["time_mean_s"], err, lo, hi)
+        better = paired_better(g["path"]) if measure == "sync_error_px" and "path" in g.columns else None
+        front = pareto_front(g["time_mean_s"], err, lo, hi, better)
         for i, (r, on) in enumerate(zip(g.itertuples(), front)):
             base = baseline_for(runs[runs["study"] == r.study], scene, scale, seed=r.seed)
             rows.append({"scene": scene, "scale": scale, "mode": r.mode, "variant": r.variant or r.mode, "run": r.run,

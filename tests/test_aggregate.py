@@ -362,6 +362,34 @@ def test_paper_timings_reproduce_the_papers_table1(tmp_path):
                 assert abs(r[col] - v) <= PRINTED_TOL, f"{scene}/{mode} {col}: {r[col]} != {v}"
 
 
+def test_pareto_front_tells_runs_apart_window_by_window(tmp_path):
+    """Runs restarted from the same states share their windows: a run whose error is lower in
+    every window is told apart by the paired interval even where the windows' spread (the
+    dance's phase) makes the unpaired intervals overlap."""
+    from experiments.sync import bootstrap_interval, paired_difference_interval
+    from paper_figures.pareto import pareto_table
+
+    base = np.array([1.0, 3.0, 5.0, 7.0, 9.0])
+    frames = [0, 10, 20, 30, 40]
+    for i, (mode, t, shift) in enumerate((("nonadaptive", 1.0, 1.0), ("viewdep", 1.5, 0.9), ("adaptive", 2.0, 0.0))):
+        e = base + shift
+        lo, hi = bootstrap_interval(e)
+        folder = write_run(tmp_path / f"{i}_{mode}", "solo_dancer", mode, [50] * 4, [30] * 4, [t] * 4,
+                           study="accuracy", accuracy={"error_px_mean": 60.0},
+                           sync={"sync_error_px_mean": float(e.mean()), "sync_error_px_lo": lo, "sync_error_px_hi": hi})
+        pd.DataFrame({"sync_frame": frames, "sync_error_px": e}).to_parquet(folder / "sync.parquet", index=False)
+    lo_v, hi_v = paired_difference_interval(pd.Series(base + 0.9, index=frames), pd.Series(base + 1.0, index=frames))
+    assert lo_v == pytest.approx(-0.1) and hi_v == pytest.approx(-0.1)
+    runs = load_runs([tmp_path]).runs
+    t = pareto_table(runs).set_index("mode")
+    assert t["on_front"].all()  # each slower run is lower in every window
+    # without the windows, the intervals overlap: only the fastest is on the front
+    for f in tmp_path.glob("*/sync.parquet"):
+        f.unlink()
+    t = pareto_table(runs).set_index("mode")
+    assert t["on_front"].to_dict() == {"nonadaptive": True, "viewdep": False, "adaptive": False}
+
+
 # ---- the figures -----------------------------------------------------------------------------------
 
 def test_pareto_front_by_hand():
