@@ -52,12 +52,12 @@ from cloth.io.manifest import write_json_atomic, write_parquet_atomic
 from cloth.io.states import StateError, load_state, require_restart
 from cloth.simulation import SimulationDiverged
 from cloth.view.paths import path_from_config
-from experiments.accuracy import AccuracyError, check_configs, state_files
+from experiments.accuracy import BOOTSTRAP, AccuracyError, check_configs, state_files
+from experiments.accuracy import bootstrap_mean_interval as bootstrap_interval  # over windows here
 from experiments.build import ConfigError, build_simulation, crowd_size
 
 EVERY, HORIZON, BEFORE_CUT = 10, 8, 5  # frames: the issue's defaults
 RESOLUTION_SCALE = 0.5  # rendered image / camera image: samples every 2 camera pixels (distances stay in camera px)
-BOOTSTRAP = 2000  # resamples of the windows for the 90 % interval of the mean
 COLUMNS = ("sync_frame", "frame", "before_cut", "sync_error_px", "sync_error_p90_px", "sync_samples", "faces_mean",
            "sim_s", "diverged")
 
@@ -147,17 +147,6 @@ def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, b
                 f"{row['sync_error_px']:.2f} px, {row['faces_mean']:.0f} faces, "
                 f"{time.perf_counter() - t0:.1f} s")
     return pd.DataFrame(rows, columns=list(COLUMNS))
-
-
-def bootstrap_interval(values: np.ndarray, resamples: int = BOOTSTRAP, seed: int = 0) -> tuple[float, float]:
-    """90 % percentile-bootstrap interval of the mean of `values` (NaN left out; (nan, nan) if none)."""
-    v = np.asarray(values, dtype=np.float64)
-    v = v[np.isfinite(v)]
-    if v.size == 0:
-        return math.nan, math.nan
-    rng = np.random.default_rng(seed)
-    means = v[rng.integers(0, v.size, size=(resamples, v.size))].mean(axis=1)
-    return float(np.percentile(means, 5)), float(np.percentile(means, 95))
 
 
 def paired_difference_interval(a, b, resamples: int = BOOTSTRAP, seed: int = 0) -> tuple[float, float]:

@@ -134,6 +134,7 @@ def drape(runset: RunSet, out) -> list[Path]:
             ax.plot(x, t[col].to_numpy(float), marker=mark, label=m)
     if np.isfinite(dc_fine):
         axes[0].axhline(dc_fine, color="0.3", ls="--", lw=1, label="fine, no compensation")
+    axes[2].set_yscale("log")  # from round-off-sized compression to whole folds held flat
     for ax, ylabel in zip(axes, ("drape coefficient at equilibrium", "folds at equilibrium",
                                  "compressive membrane energy out of view (J)")):
         ax.set_xticks(x, comps)
