@@ -390,6 +390,27 @@ def test_pareto_front_tells_runs_apart_window_by_window(tmp_path):
     assert t["on_front"].to_dict() == {"nonadaptive": True, "viewdep": False, "adaptive": False}
 
 
+def test_the_fixed_mesh_of_adaptives_quality_is_the_coarsest_not_told_apart_as_worse(tmp_path):
+    from paper_figures.pareto import pareto_table
+
+    base = np.array([1.0, 3.0, 5.0, 7.0, 9.0])
+    frames = [0, 10, 20, 30, 40]
+    # adaptive: base; fixed meshes 4 px, 1 px (told apart: worse) and +-0.5 px around it (not told apart)
+    cases = (("adaptive", "adaptive", 1.0, 500, base), ("nonadaptive", "fixed x0.5", 0.2, 100, base + 4.0),
+             ("nonadaptive", "fixed x0.7", 0.4, 200, base + 1.0),
+             ("nonadaptive", "fixed x1.4", 1.5, 900, base + np.array([0.5, -0.5, 0.5, -0.5, 0.5])),
+             ("nonadaptive", "fixed x2", 3.0, 1600, base - 0.2))
+    for i, (mode, variant, t, faces, e) in enumerate(cases):
+        folder = write_run(tmp_path / f"{i}", "solo_dancer", mode, [faces] * 4, [faces // 2] * 4, [t] * 4,
+                           study="accuracy", variant=variant, accuracy={"error_px_mean": 60.0},
+                           sync={"sync_error_px_mean": float(e.mean()), "sync_error_px_lo": float(e.mean()) - 3,
+                                 "sync_error_px_hi": float(e.mean()) + 3})
+        pd.DataFrame({"sync_frame": frames, "sync_error_px": e}).to_parquet(folder / "sync.parquet", index=False)
+    t = pareto_table(load_runs([tmp_path]).runs).set_index("variant")
+    assert t["equal_quality"].to_dict() == {"fixed x0.5": False, "fixed x0.7": False, "adaptive": False,
+                                            "fixed x1.4": True, "fixed x2": False}
+
+
 # ---- the figures -----------------------------------------------------------------------------------
 
 def test_pareto_front_by_hand():
