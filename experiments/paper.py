@@ -31,7 +31,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 STUDIES = ("table1", "sweep_nu_out", "sweep_k", "sweep_T", "sweep_margin", "sweep_resolution", "ablation_buckling",
-           "ablation_anticipation", "accuracy")
+           "ablation_buckling_dancer", "ablation_anticipation", "accuracy")
 DEFAULT_STUDIES = ("table1", "accuracy")
 WARMUP = [sys.executable, "-m", "experiments.run", "scene=karate", "+point=viewdep", "scale=small", "frames=2",
           "output.rerun=false", "output.progress=false"]

@@ -129,3 +129,34 @@ def test_drape_table_says_whether_compensation_moves_toward_the_fine_mesh(tmp_pa
     assert got[("coarse", "uniform")][1] is False
     assert got[("view-coarsened", "k=10")][1] is True  # 0.72 is closer to 0.70 than 0.85
     assert pd.isna(got[("fine", "none")][1]) and pd.isna(got[("coarse", "none")][1])  # nothing to compare
+
+
+def test_the_standing_dancer_records_her_hem_and_the_table_compares_it_with_the_fine_reference(tmp_path):
+    from experiments.aggregate import load_runs
+    from experiments.build import ConfigError
+    from paper_figures.ablations import standing
+
+    cfg = compose_config("+experiment=ablation_buckling_dancer", "+point=nu_out/0.01", *QUIET)
+    sim, frames = build_simulation(cfg)
+    rec = sim.state_record()
+    assert frames == 60 and rec["faces_out_of_frame"] == rec["faces"]  # the whole skirt out of view
+    assert rec["hem_radius_mean_m"] == pytest.approx(0.73, rel=1e-3) and rec["folds"] == 0  # a flat disc
+    assert rec["drape_coefficient"] == pytest.approx(1.0, abs=SHADOW_RTOL)
+    with pytest.raises(ConfigError, match="hem_probe measures a circle skirt"):
+        build_simulation(compose_config("scene=solo_dancer", "scene.params.hem_probe=true",
+                                        "scene.params.garment=obj"))
+    n = 12
+    for i, (mode, variant, hem, ref) in enumerate((("nonadaptive", "reference", 0.38, True),
+                                                   ("nonadaptive", "nonadaptive", 0.49, False),
+                                                   ("viewdep", "buckling=none", 0.42, False))):
+        folder = write_run(tmp_path / f"{i}", "solo_dancer", mode, [100] * n, [60] * n, [0.1] * n,
+                           study="ablation_buckling_dancer", variant=variant,
+                           extra_frames={"hem_radius_mean_m": np.r_[np.full(n - 10, 0.7), np.full(10, hem)],
+                                         "folds": np.full(n, 5), "drape_coefficient": np.full(n, 0.2),
+                                         "compressive_energy_out_j": np.full(n, 0.01)})
+        c = yaml.safe_load((folder / "config.yaml").read_text())
+        c["reference"] = ref
+        (folder / "config.yaml").write_text(yaml.safe_dump(c))
+    standing(load_runs([tmp_path]), tmp_path / "figures")
+    t = pd.read_csv(tmp_path / "figures" / "ablation_buckling_dancer.csv").set_index("variant")
+    assert np.allclose(t["hem_minus_fine_m"], [0.0, 0.11, 0.04])  # ballooning against the fine reference

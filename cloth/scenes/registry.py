@@ -215,7 +215,7 @@ CHARACTER_JITTER = 1e-4
 
 
 def _character_scene(name, material, body, garments, *, thickness, friction, frame_time, steps_per_frame,
-                     effects, jitter, seed, notes=(), obstacle=None) -> Scene:
+                     effects, jitter, seed, notes=(), obstacle=None, probes=()) -> Scene:
     """`obstacle`: what the cloth collides with, if not the capsule `body` (a mesh body).
     `jitter` (m): standard deviation of the seeded noise added to the free garment nodes' initial
     positions (each axis), so that two seeds give two trajectories; the pinned nodes stay."""
@@ -230,7 +230,8 @@ def _character_scene(name, material, body, garments, *, thickness, friction, fra
     return Scene(name=name, mesh=mesh, material=material, effects=frozenset(effects),
                  frame_time=frame_time, steps_per_frame=steps_per_frame,
                  obstacles=[obstacle if obstacle is not None else body] if "obstacles" in effects
-                 else [], handles=handles, thickness=thickness, friction=friction, notes=tuple(notes))
+                 else [], handles=handles, thickness=thickness, friction=friction, notes=tuple(notes),
+                 probes=tuple(probes))
 
 
 BODIES = ("capsules", "mesh")  # the character's collision body: its capsules, or a tessellated skinned mesh of them
@@ -300,7 +301,7 @@ def solo_dancer(material: Material, *, resolution: int = 48, waist_radius: float
                 effects=CHARACTER_EFFECTS, body: str = "capsules",
                 body_segments: int = 12, garment: str = "circle_skirt", garment_obj=None, garment_scale: float = 1.0,
                 garment_offset=(0.0, 0.0, 0.0), garment_uv_scale: float = 1.0, garment_joint: str = "abdomen",
-                garment_pin_distance: float = 0.0, cell_aspect: float = 1.0) -> Scene:
+                garment_pin_distance: float = 0.0, cell_aspect: float = 1.0, hem_probe: bool = False) -> Scene:
     """A dancer (the mannequin's `dance` motion) in a circle skirt pinned at the waist, which
     falls from a flat disc, drapes while the dancer stands, then flares out in the turns.
     `resolution`: segments around the waist; `phase` (s, >= 0) delays the motion's start (the
@@ -312,8 +313,14 @@ def solo_dancer(material: Material, *, resolution: int = 48, waist_radius: float
     texture coordinates x `garment_uv_scale` m per UV unit as material coordinates), pinned to
     `garment_joint` along its boundary loop nearest to that joint, plus the nodes within
     `garment_pin_distance` m of the loop (cloth.scenes.garments.obj_garment); `resolution` is then unused.
-    `cell_aspect` > 1: the circle skirt's cells that many times longer across than around (thin input triangles)."""
+    `cell_aspect` > 1: the circle skirt's cells that many times longer across than around (thin input triangles).
+    `hem_probe`: every frame's record carries the circle skirt's drape measures about the waist's
+    axis (cloth.eval.drape.DrapeProbe with the waist as the support: the hem's radius and folds, the
+    skirt's shadow as a drape coefficient), for the dancer standing still (a `settle` longer than
+    the run)."""
     name = "solo_dancer"
+    if hem_probe and garment != "circle_skirt":
+        raise SceneError(f"scene {name!r}: hem_probe measures a circle skirt's hem; garment is {garment!r}")
     _check_resolution(name, resolution)
     _check_size(name, waist_radius=waist_radius, skirt_length=skirt_length, speed=speed)
     _check_phase(name, phase)
@@ -325,9 +332,14 @@ def solo_dancer(material: Material, *, resolution: int = 48, waist_radius: float
                garment_pin_distance=garment_pin_distance)
     skirt = _dancer_garment(name, body, garment, resolution, waist_radius, skirt_length, obj, cell_aspect)
     obstacle = _body_obstacle(name, body, body_kind, body_segments)
+    probes = ()
+    if hem_probe:
+        waist = skirt.mesh.node_x[np.asarray(skirt.pinned)].mean(axis=0)
+        probes = (DrapeProbe(center=(float(waist[0]), float(waist[1])), support_radius=waist_radius,
+                             specimen_radius=waist_radius + skirt_length),)
     return _character_scene(name, material, body, [skirt], thickness=thickness, friction=friction,
                             frame_time=frame_time, steps_per_frame=steps_per_frame, effects=effects,
-                            jitter=jitter, seed=seed, obstacle=obstacle)
+                            jitter=jitter, seed=seed, obstacle=obstacle, probes=probes)
 
 
 NO_SELF_COLLISION_NOTE = ("karate: the scene does not declare self_collision, so the two skirts pass through "
