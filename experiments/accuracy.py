@@ -231,7 +231,11 @@ def evaluate_runs(run_dirs, ref_dir, resolution_scale: float = 1.0) -> list[pd.D
         raise AccuracyError(f"--resolution-scale must be a number > 0, got {resolution_scale!r}")
     refs = _ref_list(ref_dir)
     run_dirs = [Path(d) for d in run_dirs]
-    frames = [check_pair(d, r) for d in run_dirs for r in refs][::len(refs)]
+    frames = []
+    for d in run_dirs:  # every run against every member, before any work; its frames from the first
+        frames.append(check_pair(d, refs[0]))
+        for r in refs[1:]:
+            check_pair(d, r)
     for r in refs[1:]:  # members of one ensemble: the same scene, camera and frame time
         check_configs(r, refs[0])
     ref_states = [state_files(r) for r in refs]

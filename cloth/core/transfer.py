@@ -128,23 +128,6 @@ def _locate_candidates(tri, cand, face_comp, points, point_comp, face, weights, 
                     break
 
 
-@njit(cache=True)
-def _locate_exhaustive(tri, face_comp, points, point_comp, face, weights, dist):
-    """As _locate_candidates with every face a candidate (points the candidates missed)."""
-    w = np.empty(3)
-    for i in range(points.shape[0]):
-        for f in range(tri.shape[0]):
-            if face_comp[f] != point_comp[i]:
-                continue
-            d = _tri_closest(tri[f], points[i], w)
-            if d < dist[i]:
-                dist[i] = d
-                face[i] = f
-                weights[i, :] = w
-                if d == 0.0:
-                    break
-
-
 def locate(vert_u: np.ndarray, face_verts: np.ndarray, face_comp: np.ndarray, points: np.ndarray,
            point_comp: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(face (M,), weights (M, 3), distance (M,) m) of material points (M, 2) of the given
@@ -173,9 +156,12 @@ def locate(vert_u: np.ndarray, face_verts: np.ndarray, face_comp: np.ndarray, po
     # not inside any candidate: search the whole component (boundary points, long thin faces)
     out = np.flatnonzero(dist > 0)
     if out.size:
-        f2, w2, d2 = face[out].copy(), weights[out].copy(), dist[out].copy()
-        _locate_exhaustive(tri, face_comp, points[out], point_comp[out], f2, w2, d2)
-        face[out], weights[out], dist[out] = f2, w2, d2
+        for c in np.unique(point_comp[out]):
+            pts = out[point_comp[out] == c]
+            every = np.flatnonzero(face_comp == c)[None, :]  # every face of the piece is a candidate
+            for i in pts:
+                _locate_candidates(tri, every, face_comp, points[i:i + 1], point_comp[i:i + 1], face[i:i + 1],
+                                   weights[i:i + 1], dist[i:i + 1])
     return face, weights, dist
 
 
