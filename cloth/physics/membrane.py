@@ -19,7 +19,7 @@ with A the material area and (mu, lam) the 2D Lamé parameters in N/m. Gradient 
 The last three terms are A (dE/dx)^T C (dE/dx), positive semi-definite; the first is a
 Kronecker product of the Gram matrix (g_a^T S g_b) with I, PSD whenever S is. So the Hessian
 can be indefinite only under compression (S with a negative eigenvalue), and only then is it
-eigen-decomposed and made positive semi-definite (:func:`project_psd`): negative eigenvalues are
+eigen-decomposed (cloth.physics.eigen) and made positive semi-definite (:func:`project_psd`): negative eigenvalues are
 clamped to zero under mild compression, and replaced by their absolute values (Chen et al.,
 "Stabler Neo-Hookean Simulation", 2024) where E's smallest eigenvalue is below
 ABSOLUTE_STRAIN = -0.1 (a principal stretch below 0.89). A face compressed that far with
@@ -53,6 +53,8 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit, prange
+
+from cloth.physics.eigen import symmetric_eig
 
 
 @njit(cache=True)
@@ -95,18 +97,26 @@ def _strongly_compressed(E00, E01, E11):
 def project_psd(H, absolute=False):
     """Make the symmetric matrix H positive semi-definite in place: negative eigenvalues -> 0,
     or -> |w| with `absolute` (absolute-eigenvalue filtering, Chen et al., "Stabler Neo-Hookean
-    Simulation", SIGGRAPH 2024)."""
-    w, V = np.linalg.eigh(H)
+    Simulation", SIGGRAPH 2024). H - c sum_{w_k < 0} w_k v_k v_k^T with c = 1 (clamp) or 2
+    (absolute): the same matrix as V max(w, 0) V^T, in the work of the few negative eigenpairs."""
     n = H.shape[0]
-    for i in range(n):
-        for j in range(n):
-            s = 0.0
-            for k in range(n):
-                if w[k] > 0.0:
-                    s += V[i, k] * w[k] * V[j, k]
-                elif absolute:
-                    s -= V[i, k] * w[k] * V[j, k]
-            H[i, j] = s
+    w = np.empty(n)
+    V = np.empty((n, n))
+    symmetric_eig(H, w, V)
+    c = 2.0 if absolute else 1.0
+    for k in range(n):
+        if w[k] >= 0.0:
+            continue
+        wk = c * w[k]
+        for i in range(n):
+            vi = wk * V[i, k]
+            for j in range(n):
+                H[i, j] -= vi * V[j, k]
+    for i in range(n):  # exactly symmetric, as the element Hessians are assembled
+        for j in range(i + 1, n):
+            m = 0.5 * (H[i, j] + H[j, i])
+            H[i, j] = m
+            H[j, i] = m
 
 
 @njit(cache=True)
