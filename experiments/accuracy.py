@@ -11,10 +11,17 @@ into each RUN_DIR:
   cloth_px_run, cloth_px_ref, iou, offscreen_distance_m (definitions: cloth.eval.screenspace),
   and error_lo_px, error_hi_px, floor_px, error_ratio, members (a reference ensemble, below),
   popping_px (the run against itself: popping within a shot, cloth.eval.screenspace);
+  and the run's statistics of visible cloth (cloth.eval.visible: visible_area_px,
+  silhouette_length_px, wrinkle_energy_px2, hem_radius_m, hem_height_m);
+* ``visible.parquet``: per camera shot and statistic, the run's mean over the shot's frames, the
+  reference members' mean and spread (standard deviation over the members' own shot means) and
+  the run's distance from them in spreads (cloth.eval.visible.spread_distance: about 1 or below,
+  the run looks as much like the reference as one member like another; NaN with one member);
 * ``accuracy.json``: ``<column>_mean`` and ``<column>_max`` of every numeric column (NaN frames
-  left out; null when a column has no value), ``reference`` (the reference folder), ``frames``
-  (frames evaluated), ``resolution`` ([width, height] of the rendered images),
-  ``resolution_scale`` and ``definition`` (the definitions, with their version).
+  left out; null when a column has no value), ``<statistic>_distance_mean`` (over the shots) and
+  ``visible_distance_mean`` (over shots and statistics), ``reference`` (the reference folder),
+  ``frames`` (frames evaluated), ``resolution`` ([width, height] of the rendered images),
+  ``resolution_scale`` and ``definition`` (the definitions, with their versions).
 
 **A reference ensemble** (several REF_DIRs: runs of the reference config that differ only in
 their seed, the members): every column is the mean over the members; error_lo_px / error_hi_px
@@ -41,7 +48,7 @@ import numpy as np
 import pandas as pd
 from omegaconf import OmegaConf
 
-from cloth.eval import screenspace
+from cloth.eval import screenspace, visible
 from cloth.eval.screenspace import frame_errors, offscreen_distance, popping, render_state
 from cloth.io.manifest import write_json_atomic, write_parquet_atomic
 from cloth.io.states import load_state, merge_states
@@ -52,7 +59,8 @@ from cloth.view.paths import path_from_config
 # chaos floor (median error between pairs of members; NaN with one member), error / floor, members.
 ENSEMBLE_COLUMNS = ("error_lo_px", "error_hi_px", "floor_px", "error_ratio", "members")
 COLUMNS = ("frame", "error_px", "silhouette_px", "surface_px", "cloth_px_run", "cloth_px_ref", "iou",
-           "offscreen_distance_m", *ENSEMBLE_COLUMNS, "popping_px")
+           "offscreen_distance_m", *ENSEMBLE_COLUMNS, "popping_px", *visible.STATISTICS)
+VISIBLE_COLUMNS = ("shot", "statistic", "frames", "run", "members_mean", "members_spread", "distance")
 BOOTSTRAP = 2000  # resamples for the 90 % intervals (seeded: the same numbers every time)
 # The floor has saturated at the first frame where it reaches this fraction of its largest value:
 # from there on, two members of the ensemble are as different as two unrelated runs of the scene.
@@ -71,9 +79,12 @@ class AccuracyError(ValueError):
 
 def definition() -> str:
     """The definitions of the columns, with their version (cloth.eval.screenspace's docstring)."""
-    doc = screenspace.__doc__
-    start = doc.index("Definitions (version")
-    return doc[start:].strip().replace(":data:`DEFINITION_VERSION`", screenspace.DEFINITION_VERSION)
+    parts = []
+    for module in (screenspace, visible):
+        doc = module.__doc__
+        start = doc.index("Definitions (version") if "Definitions (version" in doc else 0
+        parts.append(doc[start:].strip().replace(":data:`DEFINITION_VERSION`", module.DEFINITION_VERSION))
+    return "\n\n".join(parts)
 
 
 # ---- reading run folders -----------------------------------------------------------------------
@@ -246,10 +257,12 @@ def evaluate_runs(run_dirs, ref_dir, resolution_scale: float = 1.0) -> list[pd.D
         raise AccuracyError(f"camera config cannot be built: {exc}") from None
     rows = [[] for _ in run_dirs]
     recent = [[] for _ in run_dirs]  # each run's last two (frame, shot, image): popping needs three
-    numeric = [c for c in COLUMNS if c not in ("frame", "popping_px", *ENSEMBLE_COLUMNS)]
+    seen = [[] for _ in run_dirs]  # each run's (shot, its statistics, the members' statistics) per frame
+    numeric = [c for c in COLUMNS if c not in ("frame", "popping_px", *ENSEMBLE_COLUMNS, *visible.STATISTICS)]
     for frame in sorted(set().union(*frames)):
         members = [_load(states[frame]) for states in ref_states]
         ref_img = {}  # the members' images under each distinct camera (runs share one path)
+        ref_stats = {}  # and their statistics of visible cloth
         floor = {}
         for i, d in enumerate(run_dirs):
             if frame not in run_states[i]:
@@ -264,8 +277,11 @@ def evaluate_runs(run_dirs, ref_dir, resolution_scale: float = 1.0) -> list[pd.D
                 pairs = [frame_errors(a, b)["error_px"] for k, a in enumerate(ref_img[camera])
                          for b in ref_img[camera][k + 1:]]
                 floor[camera] = float(np.median(pairs)) if pairs else math.nan
+                ref_stats[camera] = [visible.frame_statistics(img, m) for img, m in zip(ref_img[camera], members)]
             run_img = render_state(camera, run, resolution_scale)
             shot = _shot(paths[i], members[0]["time"])
+            stats = visible.frame_statistics(run_img, run)
+            seen[i].append((shot, stats, ref_stats[camera]))
             if len(recent[i]) == 2:
                 (f0, s0, im0), (f1, s1, im1) = recent[i]
                 if (f0, f1) == (frame - 2, frame - 1) and s0 == s1 == shot:
@@ -282,9 +298,33 @@ def evaluate_runs(run_dirs, ref_dir, resolution_scale: float = 1.0) -> list[pd.D
             lo, hi = bootstrap_mean_interval([e["error_px"] for e in per_member], seed=frame)
             f = floor[camera]
             row.update(error_lo_px=lo, error_hi_px=hi, floor_px=f, members=len(members),
-                       error_ratio=row["error_px"] / f if f > 0 else math.nan, popping_px=math.nan)
+                       error_ratio=row["error_px"] / f if f > 0 else math.nan, popping_px=math.nan, **stats)
             rows[i].append(row)
-    return [pd.DataFrame(r, columns=list(COLUMNS)).astype({"frame": np.int64}) for r in rows]
+    tables = []
+    for r, frames_seen in zip(rows, seen):
+        table = pd.DataFrame(r, columns=list(COLUMNS)).astype({"frame": np.int64})
+        table.attrs["visible"] = visible_by_shot(frames_seen)
+        tables.append(table)
+    return tables
+
+
+def visible_by_shot(frames_seen) -> pd.DataFrame:
+    """visible.parquet's table (VISIBLE_COLUMNS) from a run's frames: (shot, the run's statistics,
+    the members' statistics) each. Per shot and statistic, the run's mean over the shot's frames
+    and each member's, then the run's distance from the members in their spread."""
+    out = []
+    for shot in sorted({f[0] for f in frames_seen}):
+        in_shot = [f for f in frames_seen if f[0] == shot]
+        n_members = len(in_shot[0][2])
+        for name in visible.STATISTICS:
+            run = np.array([f[1][name] for f in in_shot], dtype=np.float64)
+            members = np.array([[f[2][k][name] for f in in_shot] for k in range(n_members)], dtype=np.float64)
+            run_mean = float(np.nanmean(run)) if np.isfinite(run).any() else math.nan
+            member_means = [float(np.nanmean(m)) if np.isfinite(m).any() else math.nan for m in members]
+            dist, mean, spread = visible.spread_distance(run_mean, member_means)
+            out.append({"shot": shot, "statistic": name, "frames": len(in_shot), "run": run_mean,
+                        "members_mean": mean, "members_spread": spread, "distance": dist})
+    return pd.DataFrame(out, columns=list(VISIBLE_COLUMNS))
 
 
 def evaluate_run(run_dir, ref_dir, resolution_scale: float = 1.0) -> pd.DataFrame:
@@ -331,6 +371,11 @@ def summarize(table: pd.DataFrame, ref_dir, resolution, resolution_scale: float,
         changed = table["frame"].map(remeshed).fillna(0).to_numpy() > 0
         out["popping_remesh_px_mean"] = _stat(table["popping_px"][changed], np.mean)
         out["popping_still_px_mean"] = _stat(table["popping_px"][~changed], np.mean)
+    shots = table.attrs.get("visible")
+    if shots is not None and len(shots):
+        for name in visible.STATISTICS:
+            out[f"{name}_distance_mean"] = _stat(shots["distance"][shots["statistic"] == name], np.mean)
+        out["visible_distance_mean"] = _stat(shots["distance"], np.mean)
     out.update(reference=str(refs[0].resolve()) if len(refs) == 1 else [str(r.resolve()) for r in refs],
                members=len(refs), frames=int(len(table)),
                resolution=[int(resolution[0]), int(resolution[1])], resolution_scale=float(resolution_scale),
@@ -355,7 +400,12 @@ def write_accuracy(run_dir, table: pd.DataFrame, ref_dir, resolution_scale: floa
     except Exception:  # noqa: BLE001 - no records, or records without remeshing: popping is not split
         remeshed = None
     summary = summarize(table, ref_dir, image_resolution(run_dir, resolution_scale), resolution_scale, remeshed)
-    write_parquet_atomic(run_dir / "accuracy.parquet", table)
+    shots = table.attrs.get("visible")
+    plain = table.copy()
+    plain.attrs = {}  # parquet keeps a frame's attrs as JSON: the per-shot table goes to its own file
+    write_parquet_atomic(run_dir / "accuracy.parquet", plain)
+    if shots is not None:
+        write_parquet_atomic(run_dir / "visible.parquet", shots)
     write_json_atomic(run_dir / "accuracy.json", summary)
     return summary
 
@@ -381,6 +431,8 @@ def main(argv=None) -> int:
               f"{fmt(s['error_px_max'], 'px')} max  iou {fmt(s['iou_mean'], '')} "
               f"off-screen {fmt(s['offscreen_distance_m_mean'], 'm')}"
               + (f"  floor {fmt(s['floor_px_mean'], 'px')} mean, saturated at frame {s['floor_saturation_frame']}"
+                 if s["members"] > 1 else "")
+              + (f"  visible statistics {fmt(s.get('visible_distance_mean'), 'spreads')} from the ensemble"
                  if s["members"] > 1 else "")
               + f"  -> {Path(run_dir) / 'accuracy.parquet'}")
     return 0

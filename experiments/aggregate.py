@@ -62,7 +62,9 @@ SWEPT_COLUMNS = ("nu_out", "margin", "T", "anticipation", "l_min_px", "buckling_
                  "resolution_factor")
 ACCURACY_KEYS = ("error_px_mean", "error_px_max", "silhouette_px_mean", "surface_px_mean", "iou_mean",
                  "offscreen_distance_m_mean", "popping_px_mean", "popping_remesh_px_mean", "popping_still_px_mean",
-                 "floor_px_mean", "error_ratio_mean", "error_ratio_before_saturation_mean", "floor_saturation_frame")
+                 "floor_px_mean", "error_ratio_mean", "error_ratio_before_saturation_mean", "floor_saturation_frame",
+                 "visible_distance_mean", "visible_area_px_distance_mean", "silhouette_length_px_distance_mean",
+                 "wrinkle_energy_px2_distance_mean", "hem_radius_m_distance_mean", "hem_height_m_distance_mean")
 # sync.json (experiments.sync, the re-synchronised error) -> runs table column
 SYNC_KEYS = {"sync_error_px_mean": "sync_error_px_mean", "sync_error_px_lo": "sync_error_px_lo",
              "sync_error_px_hi": "sync_error_px_hi", "sync_error_px_cut_mean": "sync_error_px_cut_mean",

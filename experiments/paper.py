@@ -1,8 +1,15 @@
-"""The main job: reproduce the paper's Table 1, its Fig. 8 and the accuracy/time Pareto figure.
+"""The main job: the accuracy/time Pareto figure, the paper's Table 1 and Fig. 8, and both ablations.
 
     python -m experiments.paper [--scale small|paper] [--jobs N] [--out results/paper/<timestamp>]
-                                [--studies table1 accuracy ...] [--frames N] [--repeats 3]
+                                [--studies accuracy table1 ...] [--frames N] [--repeats 3]
                                 [--crowd-repeats 1]
+
+The default studies, in this order: ``accuracy`` (the Pareto study: the fixed mesh at four
+resolutions, adaptive, view-dependent settings with the anticipation window swept, against a
+reference ensemble of five seeds), ``table1`` (its non-adaptive row is the fixed mesh the accuracy
+study found of adaptive's quality: the coarsest whose re-synchronised error is not told apart as
+worse than adaptive's; the preset's own fixed mesh when the accuracy study is not run or finds
+none), ``ablation_buckling`` (the drape test) and ``ablation_buckling_dancer`` (the standing dancer).
 
 Runs each study as a Hydra multirun (``python -m experiments.run -m +experiment=<study>``, joblib
 launcher, ``--jobs`` runs at a time: one by default, so that timed runs never compete) into
@@ -29,10 +36,14 @@ import time
 from datetime import datetime
 from pathlib import Path
 
+import pandas as pd
+import yaml
+
 ROOT = Path(__file__).resolve().parents[1]
-STUDIES = ("table1", "sweep_nu_out", "sweep_k", "sweep_T", "sweep_margin", "sweep_resolution", "ablation_buckling",
-           "ablation_buckling_dancer", "ablation_anticipation", "accuracy")
-DEFAULT_STUDIES = ("table1", "accuracy")
+# in the order they run (the accuracy study first: Table 1's non-adaptive row depends on it)
+STUDIES = ("accuracy", "table1", "ablation_buckling", "ablation_buckling_dancer", "ablation_anticipation",
+           "sweep_nu_out", "sweep_k", "sweep_T", "sweep_margin", "sweep_resolution")
+DEFAULT_STUDIES = ("accuracy", "table1", "ablation_buckling", "ablation_buckling_dancer")
 WARMUP = [sys.executable, "-m", "experiments.run", "scene=karate", "+point=viewdep", "scale=small", "frames=2",
           "output.rerun=false", "output.progress=false"]
 
@@ -55,16 +66,47 @@ def study_command(study: str, out: Path, scale: str, jobs: int, frames: int | No
     return cmd + list(extra)
 
 
-def study_parts(study: str, args) -> list[tuple[str, list[str]]]:
+def equal_quality_point(out: Path, log=print) -> str:
+    """The point (conf/point) of the fixed mesh of adaptive's quality that the accuracy study in
+    out/accuracy found (paper_figures.pareto: equal_quality), for Table 1's non-adaptive row;
+    "nonadaptive" (the preset's fixed mesh), with the reason logged, when there is none."""
+    table = out / "accuracy" / "figures" / "pareto.csv"
+    if not table.is_file():
+        log(f"table1: no accuracy study in {out} ({table.name} missing): the non-adaptive row is the preset's "
+            "fixed mesh")
+        return "nonadaptive"
+    rows = pd.read_csv(table)
+    rows = rows[rows["equal_quality"].astype(bool)] if "equal_quality" in rows.columns else rows.iloc[:0]
+    if rows.empty:
+        log("table1: no fixed mesh of the accuracy study reaches adaptive's error: the non-adaptive row is the "
+            "preset's fixed mesh")
+        return "nonadaptive"
+    r = rows.iloc[0]
+    cfg = yaml.safe_load((out / "accuracy" / r["run"] / "config.yaml").read_text())
+    factor = float(cfg.get("resolution_factor") or 1.0)
+    point = "nonadaptive" if factor == 1.0 else f"resolution/{factor:g}"
+    if not (ROOT / "conf" / "point" / f"{point}.yaml").is_file():
+        log(f"table1: the fixed mesh of adaptive's quality (x{factor:g}) has no conf/point/{point}.yaml: the "
+            "non-adaptive row is the preset's fixed mesh")
+        return "nonadaptive"
+    log(f"table1: the non-adaptive row is the fixed mesh of adaptive's quality on {r['scene']}: {r['variant']} "
+        f"({r['error_px']:.3g} px; conf/point/{point})")
+    return point
+
+
+def study_parts(study: str, args, out: Path | None = None) -> list[tuple[str, list[str]]]:
     """(folder, extra overrides) of each multirun a study of the main job is made of: table1 is
-    split into its single characters (``--repeats``) and its crowd (``--crowd-repeats``)."""
+    split into its single characters (``--repeats``) and its crowd (``--crowd-repeats``), its
+    non-adaptive row the fixed mesh of adaptive's quality when the accuracy study ran first."""
     if study != "table1":
         return [(study, [])]
     crowd_jobs = min(2, args.jobs_cores)
+    baseline = equal_quality_point(out) if out is not None and "accuracy" in args.studies else "nonadaptive"
     # quoted: the sweeper's own list (a bare comma would make the override itself a sweep)
-    return [("table1", [f"hydra.sweeper.params.scene='{SINGLE_SCENES}'", f"repeats={args.repeats}"]),
+    return [("table1", [f"hydra.sweeper.params.scene='{SINGLE_SCENES}'", f"repeats={args.repeats}",
+                        f"baseline={baseline}"]),
             ("table1_crowd", [f"hydra.sweeper.params.scene='{CROWD_SCENE}'", f"repeats={args.crowd_repeats}",
-                              f"crowd_jobs={crowd_jobs}"])]
+                              f"crowd_jobs={crowd_jobs}", f"baseline={baseline}"])]
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -85,6 +127,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     bad = [s for s in args.studies if s not in STUDIES]
     if bad:
         ap.error(f"unknown study {bad[0]!r}; known: {', '.join(STUDIES)}")
+    args.studies = sorted(dict.fromkeys(args.studies), key=STUDIES.index)  # each once, in STUDIES' order
     if args.jobs < 1:
         ap.error(f"--jobs must be >= 1, got {args.jobs}")
     if args.frames is not None and args.frames < 1:
@@ -110,7 +153,7 @@ def main(argv=None) -> int:
     print("[0] compiling the solver's kernels once (numba cache), so that no timed frame pays for it", flush=True)
     subprocess.call(WARMUP + [f"hydra.run.dir={out / 'warmup'}"], cwd=ROOT, stdout=subprocess.DEVNULL)
     for i, study in enumerate(args.studies, 1):
-        for folder, extra in study_parts(study, args):
+        for folder, extra in study_parts(study, args, out):
             print(f"[{i}/{len(args.studies)}] study {study} at scale={args.scale} -> {out / folder}", flush=True)
             t0 = time.perf_counter()
             cmd = study_command(study, out, args.scale, args.jobs, args.frames, [*extra, *args.overrides], folder)

@@ -10,7 +10,8 @@ per frame per variant, and ballooning over time when accuracy.parquet is there.
 -> ablation_buckling.png/.pdf, ablation_buckling.csv/.md.
 
 Anticipation: viewdep runs that differ only in their anticipation (off, or on with its window T;
-the ablation_anticipation study's when present): faces, faces in view, screen-space error and
+the ablation_anticipation study's when present, else the accuracy study's, whose 70 frames hold
+the first cut, else every run): faces, faces in view, screen-space error and
 popping over time with the camera cuts marked; per variant the mean error and popping over the
 CUT_WINDOW_FRAMES frames from each cut, and the re-synchronised error of the windows that start
 before a cut and end after it (sync_error_px_cut_mean of sync.json: what refining before the
@@ -255,7 +256,7 @@ def lead_label(r) -> str:
 
 
 def anticipation(runset: RunSet, out) -> list[Path]:
-    runs = study_or_all(runset.runs, "ablation_anticipation")
+    runs = study_or_all(runset.runs, "ablation_anticipation", "accuracy")
     vd = runs[(runs["mode"] == "viewdep") & runs["anticipation"].notna()] if len(runs) else runs
     if vd.empty:
         raise Skip("anticipation: no viewdep runs")

@@ -132,13 +132,16 @@ def time_unit(total_s: float) -> tuple[float, str]:
     return 1.0, "s"
 
 
-def study_or_all(runs: pd.DataFrame, study: str) -> pd.DataFrame:
-    """The runs of `study` when there are any, else all runs; never the fine references."""
+def study_or_all(runs: pd.DataFrame, *studies: str) -> pd.DataFrame:
+    """The runs of the first of `studies` that has any, else all runs; never the fine references."""
     if runs.empty:
         return runs
     runs = runs[~runs["reference"].astype(bool)]
-    s = runs[runs["study"] == study]
-    return s if len(s) else runs
+    for study in studies:
+        s = runs[runs["study"] == study]
+        if len(s):
+            return s
+    return runs
 
 
 def _key(v):

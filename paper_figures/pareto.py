@@ -111,7 +111,9 @@ def pareto_table(runs: pd.DataFrame) -> pd.DataFrame:
     error_hi_px (its 90 % interval; NaN for error_px), faces_mean, speedup (against the adaptive run
     of the scene in the same study and seed: a study's runs share a commit and a machine; NaN when
     that study has none), on_front, equal_quality (the coarsest fixed mesh whose error is not told
-    apart as worse than adaptive's: :func:`equal_quality_fixed`)."""
+    apart as worse than adaptive's: :func:`equal_quality_fixed`), floor_px (the reference ensemble's
+    chaos floor over the whole run; NaN with one reference) and visible_distance (the statistics of
+    visible cloth per shot, in spreads of the ensemble: cloth.eval.visible; NaN with one reference)."""
     if runs.empty:
         return pd.DataFrame()
     pts = runs[~runs["reference"].astype(bool) & runs["error_px_mean"].notna() & runs["time_mean_s"].notna()]
@@ -128,7 +130,9 @@ def pareto_table(runs: pd.DataFrame) -> pd.DataFrame:
                          "error_lo_px": float(lo.iloc[i]) if lo is not None else np.nan,
                          "error_hi_px": float(hi.iloc[i]) if hi is not None else np.nan, "faces_mean": r.faces_mean,
                          "speedup": base["time_mean_s"] / r.time_mean_s if base is not None else np.nan,
-                         "on_front": bool(on), "equal_quality": r.run == baseline})
+                         "on_front": bool(on), "equal_quality": r.run == baseline,
+                         "floor_px": getattr(r, "floor_px_mean", np.nan),
+                         "visible_distance": getattr(r, "visible_distance_mean", np.nan)})
     out = pd.DataFrame(rows)
     return out.sort_values(["scene", "scale", "time_mean_s"]).reset_index(drop=True) if len(out) else out
 

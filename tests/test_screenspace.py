@@ -17,6 +17,7 @@ from helpers import QUIET, run_config
 from cloth.collision.ccd import point_triangle_closest
 from cloth.collision.nearest import point_mesh_distance
 from cloth.collision.obstacles import Plane, Sphere
+from cloth.eval import visible
 from cloth.eval.screenspace import (
     CLOTH,
     EMPTY,
@@ -370,6 +371,26 @@ def test_reference_ensemble_gives_mean_interval_and_chaos_floor(runs, tmp_path, 
     sat = int(table["frame"][np.flatnonzero(f >= FLOOR_SATURATION * f.max())[0]])
     assert summary["floor_saturation_frame"] == sat
     assert "floor" in capsys.readouterr().out
+    # statistics of visible cloth per shot: the run's shot mean of its per-frame values, the
+    # members' mean of theirs (each member's own, as a run against itself), the distance in spreads
+    vis = pd.read_parquet(run / "visible.parquet")
+    assert set(vis["statistic"]) == set(visible.STATISTICS) and vis["shot"].tolist() == [0] * 5
+    vis = vis.set_index("statistic")
+    own = {name: [evaluate_runs([m], m, resolution_scale=0.25)[0][name].mean() for m in members]
+           for name in ("visible_area_px", "silhouette_length_px", "wrinkle_energy_px2")}
+    spread_seen = False
+    for name, values in own.items():
+        row, spread = vis.loc[name], np.std(values, ddof=1)
+        assert row["run"] == pytest.approx(table[name].mean())
+        assert row["members_mean"] == pytest.approx(np.mean(values))
+        assert row["members_spread"] == pytest.approx(spread, abs=1e-12)
+        if spread > 1e-9 * abs(np.mean(values)):
+            spread_seen = True
+            assert row["distance"] == pytest.approx(abs(row["run"] - np.mean(values)) / spread)
+            assert summary[f"{name}_distance_mean"] == pytest.approx(row["distance"])
+    assert spread_seen  # the shifted members differ in at least one statistic
+    assert summary["hem_radius_m_distance_mean"] is None  # the sheet has no pins: no hem
+    assert "visible-v1" in summary["definition"]
 
 
 @pytest.mark.parametrize("edit, message", [

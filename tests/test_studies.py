@@ -13,6 +13,7 @@ import json
 import os
 from pathlib import Path
 
+import pandas as pd
 import pytest
 import yaml
 from helpers import ROOT, compose_config, config_choices, run_module
@@ -38,7 +39,9 @@ def _sweep(experiment: str) -> dict:
 def _runs(experiment: str) -> list[list[str]]:
     """Every run of a preset as a list of overrides (the grid the basic sweeper makes)."""
     grid = [[]]
+    preset = yaml.safe_load((ROOT / "conf" / "experiment" / f"{experiment}.yaml").read_text())
     for key, values in _sweep(experiment).items():
+        values = [str(preset["baseline"]) if v == "${baseline}" else v for v in values]  # table1's row
         grid = [g + [f"{key}={v}"] for g in grid for v in values]
     return [[f"+experiment={experiment}"] + g for g in grid]
 
@@ -47,7 +50,24 @@ def test_presets_are_the_issue_s_studies():
     assert set(EXPERIMENTS) >= {"table1", "sweep_nu_out", "sweep_k", "sweep_T", "sweep_margin",
                                 "ablation_buckling", "ablation_anticipation", "accuracy"}
     assert _sweep("table1") == {"scene": ["karate", "solo_dancer", "multiple_dancers"],
-                                "+point": ["nonadaptive", "adaptive", "viewdep", "viewdep_nofloor"]}
+                                "+point": ["${baseline}", "adaptive", "viewdep", "viewdep_nofloor"]}
+    # the non-adaptive row: the preset's fixed mesh unless the main job names the equal-quality one
+    assert compose_config("+experiment=table1").baseline == "nonadaptive"
+
+
+def test_accuracy_study_has_a_reference_ensemble_and_the_anticipation_sweep():
+    """The main job's accuracy study: a reference ensemble of five members (the issue's "at least
+    5 seeds"), the fixed mesh at four resolutions, and the anticipation window swept (the
+    anticipation ablation across the cut within its 70 frames)."""
+    cfgs = [compose_config(*run) for run in _runs("accuracy")]
+    refs = [c for c in cfgs if c.reference]
+    assert sorted(c.reference_member for c in refs) == [0, 1, 2, 3, 4]
+    assert len({c.resolution_factor for c in cfgs if c.mode.name == "nonadaptive" and not c.reference}) >= 4
+    default = compose_config("+point=viewdep").mode.view
+    leads = {(c.mode.view.anticipation, c.mode.view.anticipation_frames) for c in cfgs if c.mode.name == "viewdep"
+             and c.mode.view.nu_out == default.nu_out and c.mode.view.l_min_px == default.l_min_px}
+    assert leads == {(False, 5.0), (True, 0.0), (True, 2.0), (True, 5.0), (True, 10.0)}
+    assert all(c.frames == 70 for c in cfgs)
 
 
 @pytest.mark.parametrize("experiment", EXPERIMENTS)
@@ -82,9 +102,9 @@ def test_every_point_of_every_preset_validates(experiment):
             assert cfg.study == experiment
             assert cfg.variant, f"{overrides}: every point names its variant"
             point = overrides[-1].split("=", 1)[1]
-            if point != "reference":
+            if point != "reference" and not point.startswith("member/"):
                 assert not cfg.reference
-            else:
+            else:  # the reference and the members of its ensemble
                 assert cfg.reference and cfg.mode.name == "nonadaptive"
             key = (cfg.scene.name, point, scale)
             if scale == "paper" or key in seen:  # building paper-scale meshes is slow; small checks every key
@@ -194,19 +214,54 @@ def test_main_job_warms_the_kernel_cache_before_any_study(tmp_path, monkeypatch)
     rc = paper.main(["--out", str(tmp_path), "--studies", "table1", "accuracy"])
     assert rc == 1
     assert calls[0][:3] == paper.WARMUP[:3] and calls[0][-1] == f"hydra.run.dir={tmp_path / 'warmup'}"
-    # table1 in two parts: the single characters with 3 repeats, the crowd once, 2 characters at a time
-    assert "+experiment=table1" in calls[1] and "hydra.sweeper.params.scene='karate,solo_dancer'" in calls[1]
-    assert "repeats=3" in calls[1] and f"hydra.sweep.dir={tmp_path / 'table1'}" in calls[1]
-    assert "+experiment=table1" in calls[2] and "hydra.sweeper.params.scene='multiple_dancers'" in calls[2]
-    assert "repeats=1" in calls[2] and f"hydra.sweep.dir={tmp_path / 'table1_crowd'}" in calls[2]
-    assert "+experiment=accuracy" in calls[3] and "hydra.launcher.n_jobs=1" in calls[3]
+    # the accuracy study first (whatever the order asked), then table1 in two parts: the single
+    # characters with 3 repeats, the crowd once, 2 characters at a time
+    assert "+experiment=accuracy" in calls[1] and "hydra.launcher.n_jobs=1" in calls[1]
+    assert "+experiment=table1" in calls[2] and "hydra.sweeper.params.scene='karate,solo_dancer'" in calls[2]
+    assert "repeats=3" in calls[2] and f"hydra.sweep.dir={tmp_path / 'table1'}" in calls[2]
+    assert "+experiment=table1" in calls[3] and "hydra.sweeper.params.scene='multiple_dancers'" in calls[3]
+    assert "repeats=1" in calls[3] and f"hydra.sweep.dir={tmp_path / 'table1_crowd'}" in calls[3]
+    # the accuracy study failed: no equal-quality mesh, the preset's fixed mesh
+    assert "baseline=nonadaptive" in calls[2] and "baseline=nonadaptive" in calls[3]
     assert calls[4][2] == "paper_figures"
-    for part in (calls[1], calls[2]):  # each part composes, and sweeps what it says
+    for part in (calls[2], calls[3]):  # each part composes, and sweeps what it says
         cfg = compose_config(*[a for a in part[4:] if not a.startswith("hydra.sweep.dir")], return_hydra_config=True)
         assert cfg.study == "table1" and cfg.hydra.sweeper.params.scene in ("karate,solo_dancer", "multiple_dancers")
     overrides = [a for a in paper.WARMUP[3:]]
     cfg = compose_config(*overrides)
     assert cfg.scene.name == "karate" and cfg.mode.name == "viewdep"
+
+
+def test_table1_baseline_is_the_accuracy_study_s_equal_quality_mesh(tmp_path):
+    """The main job's Table 1 takes as its non-adaptive row the fixed mesh that the accuracy study's
+    Pareto table marks equal_quality (named by its run's resolution_factor); the preset's fixed
+    mesh when there is none, or no accuracy study."""
+    from experiments import paper
+
+    args = paper.parse_args(["--out", str(tmp_path)])
+    assert args.studies[:2] == ["accuracy", "table1"]
+    logs = []
+    assert paper.equal_quality_point(tmp_path, logs.append) == "nonadaptive" and "missing" in logs[-1]
+    fig = tmp_path / "accuracy" / "figures"
+    fig.mkdir(parents=True)
+    for name, factor in (("3_solo_dancer_nonadaptive", 1.0), ("4_solo_dancer_nonadaptive", 1.4)):
+        (tmp_path / "accuracy" / name).mkdir()
+        (tmp_path / "accuracy" / name / "config.yaml").write_text(yaml.safe_dump({"resolution_factor": factor}))
+    table = pd.DataFrame({"scene": ["solo_dancer"] * 2, "variant": ["nonadaptive", "fixed x1.4"],
+                          "run": ["3_solo_dancer_nonadaptive", "4_solo_dancer_nonadaptive"],
+                          "error_px": [31.0, 18.7], "equal_quality": [False, True]})
+    table.to_csv(fig / "pareto.csv", index=False)
+    assert paper.equal_quality_point(tmp_path, logs.append) == "resolution/1.4" and "fixed x1.4" in logs[-1]
+    parts = dict(paper.study_parts("table1", args, tmp_path))
+    for folder in ("table1", "table1_crowd"):
+        assert "baseline=resolution/1.4" in parts[folder]
+        cfg = compose_config("+experiment=table1", *[a for a in parts[folder] if a.startswith("baseline")],
+                             "+point=resolution/1.4")
+        assert cfg.baseline == "resolution/1.4" and cfg.resolution_factor == 1.4
+    table.assign(equal_quality=[False, False]).to_csv(fig / "pareto.csv", index=False)
+    assert paper.equal_quality_point(tmp_path, logs.append) == "nonadaptive" and "reaches" in logs[-1]
+    table.assign(equal_quality=[True, False]).to_csv(fig / "pareto.csv", index=False)
+    assert paper.equal_quality_point(tmp_path, logs.append) == "nonadaptive"  # the preset's own mesh
 
 
 def test_a_preset_runs_as_a_multirun_and_its_callback_aggregates(tmp_path):
