@@ -84,11 +84,25 @@ def summarize(frames: pd.DataFrame) -> dict:
     for p in PHASES:
         out[f"time_{p}_total_s"] = float(frames[f"time_{p}_s"].sum())
     out["solver_iterations_total"] = int(frames["solver_iterations"].sum())
+    if "solves_capped" in frames.columns:
+        out["solves_capped_total"] = int(frames["solves_capped"].sum())
+        out["frames_with_capped_solves"] = int((frames["solves_capped"] > 0).sum())
     return out
 
 
+def capped_solves_note(summary: dict, max_iterations: int) -> str | None:
+    """The run's note when any implicit step stopped at the solver's iteration cap (None if none)."""
+    n = summary.get("solves_capped_total", 0)
+    if not n:
+        return None
+    return (f"{n} implicit step(s) in {summary['frames_with_capped_solves']} frame(s) stopped at the solver's "
+            f"iteration cap (solver.max_iterations = {max_iterations}) with the residual above solver.tolerance: "
+            f"those steps are inexact (solves_capped in frames.parquet)")
+
+
 # Per-frame columns that add up over the characters of a crowd (everything else is per character).
-CROWD_SUM_COLUMNS = ("faces", "verts", "nodes", "sim_s", "wall_s", "solver_iterations", "contacts", "faces_in_view",
+CROWD_SUM_COLUMNS = ("faces", "verts", "nodes", "sim_s", "wall_s", "solver_iterations", "solves_capped", "contacts",
+                     "faces_in_view",
                      "faces_back_facing", "faces_out_of_frame", "faces_compensated", "kinetic_energy_j", "remeshed",
                      "faces_sized", "faces_at_size_min", "faces_at_size_max")
 
@@ -131,7 +145,8 @@ def combine_crowd(character_dirs: list, out_dir: Path) -> tuple[pd.DataFrame, di
     summary = {"status": status, "characters": len(frames), **summarize(rows),
                "message": "; ".join(f"character {i}: {s['message']}" for i, s in enumerate(summaries)
                                     if s.get("message")),
-               "notes": summaries[0].get("notes", []) if summaries else [],
+               # the scene's notes (the same for every character) and each character's own, once each
+               "notes": list(dict.fromkeys(n for s in summaries for n in s.get("notes", []))),
                "character_summaries": summaries}
     write_json_atomic(out_dir / "summary.json", summary)
     return rows, summary
@@ -247,6 +262,9 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
         (out_dir / JOURNAL_FILE).unlink(missing_ok=True)  # frames.parquet holds every frame now
         summary = {"status": status, "message": message, "scene": scene.name, "notes": list(scene.notes),
                    "stages": sim.stages.names(), "frames_requested": int(n_frames), **summarize(frames)}
+        capped = capped_solves_note(summary, sim.solver.max_iterations)
+        if capped is not None:  # never silent: the summary's notes, which the run prints
+            summary["notes"].append(capped)
         if rows:
             summary["final_max_speed_m_s"] = float(rows[-1]["max_speed_m_s"])
             summary["final_kinetic_energy_j"] = float(rows[-1]["kinetic_energy_j"])

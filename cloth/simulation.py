@@ -44,7 +44,7 @@ from cloth.physics.assembly import SparsityPattern
 from cloth.physics.buckling import compressive_energy, face_alpha
 from cloth.physics.forces import Bending, ForceTerm, Gravity, Membrane, Wind, element_families
 from cloth.physics.integrator import ContactConstraints, implicit_euler_step
-from cloth.physics.linsolve import SolverOptions
+from cloth.physics.linsolve import SolverOptions, solve_capped
 from cloth.view.factors import face_geometry, face_view_data
 
 # A free node within (1 + CONTACT_BAND) x thickness of an obstacle at the start of a step is a
@@ -264,7 +264,8 @@ class Simulation:
         time, the paper's Time/Frame), wall_s = the whole call (the runner adds its I/O to it)."""
         t_start = time.perf_counter()
         timings = {p: 0.0 for p in PHASES}
-        stats = {"solver_iterations": 0, "solver_iterations_max": 0, "solver_residual": 0.0, "contacts": 0,
+        stats = {"solver_iterations": 0, "solver_iterations_max": 0, "solver_residual": 0.0, "solves_capped": 0,
+                 "contacts": 0,
                  **REMESH_RECORD, **VIEW_RECORD, **COLLISION_RECORD}
         stages = self.stages
         changed = stages.remesh and self.remesher.remesh(self, timings, stats)
@@ -363,6 +364,8 @@ class Simulation:
         stats["solver_iterations"] += s.iterations
         stats["solver_iterations_max"] = max(stats["solver_iterations_max"], s.iterations)
         stats["solver_residual"] = max(stats["solver_residual"], s.residual)
+        if solve_capped(self.solver, s.iterations, s.residual):
+            stats["solves_capped"] += 1
         self.last_energy = s.energy
 
     def _project_contacts(self, stats: dict) -> None:

@@ -21,9 +21,8 @@ into ``<out>/figures/``, and the paths are printed. Before the studies, a two-fr
 
 A study that fails (a run that diverges, a killed process) does not stop the others: its run
 folders stay as written, the aggregation reports the broken ones by name and skips them, and the
-job exits non-zero at the end. At scale=small on 2 cores, table1 took 69.9 minutes and the
-accuracy study (10 runs of 70 frames, then its re-synchronised windows) 16.9 minutes (README:
-Quick start); at scale=paper expect a day or a cluster (README: Studies, Scale).
+job exits non-zero at the end. At scale=small on 2 cores the whole job took 83.5 minutes from a
+clean clone (README: Quick start); at scale=paper expect a day or a cluster (README: Studies, Scale).
 """
 
 from __future__ import annotations
@@ -54,6 +53,8 @@ WARMUP = [sys.executable, "-m", "experiments.run", "scene=karate", "+point=viewd
 # the job stays within about 90 minutes on 2 cores at scale=small.
 SINGLE_SCENES = "karate,solo_dancer"
 CROWD_SCENE = "multiple_dancers"
+# Table 1's points in the main job: its fixed mesh (the baseline), then these (the preset's own).
+TABLE1_POINTS = ("adaptive", "viewdep", "viewdep_nofloor")
 
 
 def study_command(study: str, out: Path, scale: str, jobs: int, frames: int | None, extra=(),
@@ -103,10 +104,11 @@ def study_parts(study: str, args, out: Path | None = None) -> list[tuple[str, li
     crowd_jobs = min(2, args.jobs_cores)
     baseline = equal_quality_point(out) if out is not None and "accuracy" in args.studies else "nonadaptive"
     # quoted: the sweeper's own list (a bare comma would make the override itself a sweep)
+    points = f"points='{','.join((baseline, *TABLE1_POINTS))}'"
     return [("table1", [f"hydra.sweeper.params.scene='{SINGLE_SCENES}'", f"repeats={args.repeats}",
-                        f"baseline={baseline}"]),
+                        f"baseline={baseline}", points]),
             ("table1_crowd", [f"hydra.sweeper.params.scene='{CROWD_SCENE}'", f"repeats={args.crowd_repeats}",
-                              f"crowd_jobs={crowd_jobs}", f"baseline={baseline}"])]
+                              f"crowd_jobs={crowd_jobs}", f"baseline={baseline}", points])]
 
 
 def parse_args(argv=None) -> argparse.Namespace:

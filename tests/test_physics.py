@@ -330,3 +330,26 @@ def test_wind_drag_velocity_jacobian_matches_finite_differences():
             drag_elements(x, vm, mesh.face_nodes, wind, drag, fm, Jt)
             fd[:, col] = -(fp[face] - fm[face]) / (2 * step)  # J = -df/dv
         assert np.abs(fd - J[face]).max() < LINEAR_FD_TOL * np.abs(J[face]).max()
+
+
+def test_a_solve_stopped_at_its_iteration_cap_is_recorded_and_noted(tmp_path):
+    """An implicit step whose CG stops at solver.max_iterations above its tolerance is counted
+    per frame (solves_capped), totalled in the summary and named in its notes; a converged run
+    has none."""
+    import json
+
+    from helpers import QUIET, read_frames, run_config
+
+    from cloth.physics.linsolve import solve_capped
+
+    opts = SolverOptions(tolerance=1e-6, max_iterations=3)
+    assert solve_capped(opts, 3, 1e-3) and not solve_capped(opts, 3, 1e-7) and not solve_capped(opts, 2, 1e-3)
+    assert not solve_capped(SolverOptions(method="direct", max_iterations=1), 1, 1e-3)
+    for cap, capped in ((2, True), (1000, False)):
+        out = tmp_path / f"cap{cap}"
+        summary = run_config(out, "frames=2", f"solver.max_iterations={cap}", *QUIET)
+        frames = read_frames(out)
+        assert (frames["solves_capped"] > 0).all() == capped and (frames["solves_capped"] > 0).any() == capped
+        assert summary["solves_capped_total"] == int(frames["solves_capped"].sum())
+        notes = json.loads((out / "summary.json").read_text())["notes"]
+        assert any("iteration cap (solver.max_iterations = 2)" in n for n in notes) == capped

@@ -41,7 +41,8 @@ def _runs(experiment: str) -> list[list[str]]:
     grid = [[]]
     preset = yaml.safe_load((ROOT / "conf" / "experiment" / f"{experiment}.yaml").read_text())
     for key, values in _sweep(experiment).items():
-        values = [str(preset["baseline"]) if v == "${baseline}" else v for v in values]  # table1's row
+        if values == ["${points}"]:  # table1: its points list, with its baseline
+            values = preset["points"].replace("${baseline}", preset["baseline"]).split(",")
         grid = [g + [f"{key}={v}"] for g in grid for v in values]
     return [[f"+experiment={experiment}"] + g for g in grid]
 
@@ -49,10 +50,10 @@ def _runs(experiment: str) -> list[list[str]]:
 def test_presets_are_the_issue_s_studies():
     assert set(EXPERIMENTS) >= {"table1", "sweep_nu_out", "sweep_k", "sweep_T", "sweep_margin",
                                 "ablation_buckling", "ablation_anticipation", "accuracy"}
-    assert _sweep("table1") == {"scene": ["karate", "solo_dancer", "multiple_dancers"],
-                                "+point": ["${baseline}", "adaptive", "viewdep", "viewdep_nofloor"]}
+    assert _sweep("table1") == {"scene": ["karate", "solo_dancer", "multiple_dancers"], "+point": ["${points}"]}
     # the non-adaptive row: the preset's fixed mesh unless the main job names the equal-quality one
-    assert compose_config("+experiment=table1").baseline == "nonadaptive"
+    cfg = compose_config("+experiment=table1")
+    assert cfg.baseline == "nonadaptive" and cfg.points == "nonadaptive,adaptive,viewdep,viewdep_nofloor"
 
 
 def test_accuracy_study_has_a_reference_ensemble_and_the_anticipation_sweep():
@@ -223,10 +224,13 @@ def test_main_job_warms_the_kernel_cache_before_any_study(tmp_path, monkeypatch)
     assert "repeats=1" in calls[3] and f"hydra.sweep.dir={tmp_path / 'table1_crowd'}" in calls[3]
     # the accuracy study failed: no equal-quality mesh, the preset's fixed mesh
     assert "baseline=nonadaptive" in calls[2] and "baseline=nonadaptive" in calls[3]
+    points = "points='nonadaptive,adaptive,viewdep,viewdep_nofloor'"
+    assert points in calls[2] and points in calls[3]
     assert calls[4][2] == "paper_figures"
     for part in (calls[2], calls[3]):  # each part composes, and sweeps what it says
         cfg = compose_config(*[a for a in part[4:] if not a.startswith("hydra.sweep.dir")], return_hydra_config=True)
         assert cfg.study == "table1" and cfg.hydra.sweeper.params.scene in ("karate,solo_dancer", "multiple_dancers")
+        assert cfg.points == "nonadaptive,adaptive,viewdep,viewdep_nofloor"
     overrides = [a for a in paper.WARMUP[3:]]
     cfg = compose_config(*overrides)
     assert cfg.scene.name == "karate" and cfg.mode.name == "viewdep"
@@ -255,9 +259,10 @@ def test_table1_baseline_is_the_accuracy_study_s_equal_quality_mesh(tmp_path):
     parts = dict(paper.study_parts("table1", args, tmp_path))
     for folder in ("table1", "table1_crowd"):
         assert "baseline=resolution/1.4" in parts[folder]
-        cfg = compose_config("+experiment=table1", *[a for a in parts[folder] if a.startswith("baseline")],
+        cfg = compose_config("+experiment=table1", *[a for a in parts[folder] if a.startswith(("baseline", "points"))],
                              "+point=resolution/1.4")
         assert cfg.baseline == "resolution/1.4" and cfg.resolution_factor == 1.4
+        assert cfg.points == "resolution/1.4,adaptive,viewdep,viewdep_nofloor"
     table.assign(equal_quality=[False, False]).to_csv(fig / "pareto.csv", index=False)
     assert paper.equal_quality_point(tmp_path, logs.append) == "nonadaptive" and "reaches" in logs[-1]
     table.assign(equal_quality=[True, False]).to_csv(fig / "pareto.csv", index=False)

@@ -117,6 +117,12 @@ def pcg(indptr, indices, diag, data, b, x, tol, max_iter):
     return it, rnorm / bnorm
 
 
+def solve_capped(options: SolverOptions, iterations: int, residual: float) -> bool:
+    """True for an iterative solve that stopped at its iteration cap with its residual still above
+    the tolerance: an inexact step, which the frame's record counts (solves_capped)."""
+    return options.method == "pcg" and iterations >= options.max_iterations and residual > options.tolerance
+
+
 def solve(pattern: SparsityPattern, data: np.ndarray, b: np.ndarray, options: SolverOptions,
           x0: np.ndarray | None = None) -> tuple[np.ndarray, int, float]:
     """Solve the block system; returns (x (n,3), iterations, relative residual)."""
