@@ -409,6 +409,14 @@ def test_the_fixed_mesh_of_adaptives_quality_is_the_coarsest_not_told_apart_as_w
     t = pareto_table(load_runs([tmp_path]).runs).set_index("variant")
     assert t["equal_quality"].to_dict() == {"fixed x0.5": False, "fixed x0.7": False, "adaptive": False,
                                             "fixed x1.4": True, "fixed x2": False}
+    # Table 1 names it with its error (the mean of its windows, base + 0.1) beside adaptive's (base: 5)
+    from experiments.aggregate import table1, table1_runs
+    from paper_figures.table1 import baseline_notes
+
+    runs = load_runs([tmp_path]).runs
+    notes = baseline_notes(runs, table1(table1_runs(runs)))
+    assert len(notes) == 1 and "is fixed x1.4 (900 faces, 5.1 px (2.1-8.1) against adaptive's 5 px)" in notes[0]
+    assert notes[0].endswith("Table 1's non-adaptive rows of solo_dancer: fixed x0.5, fixed x0.7, fixed x1.4, fixed x2")
 
 
 # ---- the figures -----------------------------------------------------------------------------------
