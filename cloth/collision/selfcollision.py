@@ -75,9 +75,10 @@ class SelfCollisionParams:
     proximity_passes: int = 2  # Gauss-Seidel passes of the repulsion
     ccd_passes: int = 3  # Gauss-Seidel CCD passes before rigid impact zones
     # impact-zone rounds before giving up (the record says what is left). Rounds run only while
-    # collisions remain; 12 left 7 pairs in one frame of the karate_2x stability case once round-off
-    # had moved its trajectory (a faster element-Hessian projection), 24 leaves none.
-    max_zone_passes: int = 24
+    # collisions remain. Once round-off had moved the stability cases' trajectories (a faster
+    # element-Hessian projection), 12 rounds left 7 pairs in one frame of karate_2x and 24 left
+    # one in one_frame_step; with 48 neither leaves any.
+    max_zone_passes: int = 48
 
     def __post_init__(self):
         if not self.thickness > 0:
