@@ -214,6 +214,10 @@ def test_crowd_config_errors_name_the_key(override, key):
         build_simulation(compose_config("scene=multiple_dancers", override))
 
 
+# A skirt stuck to its body moves no faster than its waistband; one that swings, faster.
+SWING = 1.5
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("scene", ["solo_dancer", "karate"])
 def test_60_frames_stay_finite_and_out_of_the_body(scene):
@@ -230,12 +234,18 @@ def test_60_frames_stay_finite_and_out_of_the_body(scene):
         closest = min(closest, phi[free].min())
 
     after_every_step(sim, check)
-    fastest = 0.0
+    fastest_free = fastest_pinned = 0.0
     for _ in range(60):
-        fastest = max(fastest, sim.advance_frame()["max_speed_m_s"])
+        sim.advance_frame()
         assert np.all(np.isfinite(sim.mesh.node_x)) and np.all(np.isfinite(sim.mesh.node_v))
+        speed = np.linalg.norm(sim.mesh.node_v, axis=1)
+        pinned = sim.mesh.node_pinned
+        fastest_free = max(fastest_free, speed[~pinned].max())
+        fastest_pinned = max(fastest_pinned, speed[pinned].max())
     assert sim.steps_taken == 60 * 8
-    assert fastest > 0.5  # the cloth moves with the body (m/s), it is not stuck
+    # the cloth swings with the body, it is not stuck to it: its free nodes outrun the waistband
+    # that carries it (karate: 0.50 against 0.22 m/s over these 60 frames)
+    assert fastest_pinned > 0 and fastest_free > SWING * fastest_pinned
     if scene == "karate":  # the stance and the kick push the skirts: contact is exercised, not avoided
         assert closest < 2 * sim.scene.thickness
 
