@@ -98,10 +98,10 @@ def _householder_tridiagonal(Q, d, e):
 
 
 @njit(cache=True)
-def _tridiagonal_ql(d, e, Q, vectors):
-    """Eigenvalues of the tridiagonal (d, e[1:]) into d (e overwritten); with `vectors`, its
-    rotations applied to the columns of Q (which then hold the eigenvectors). Returns False if
-    an eigenvalue did not converge."""
+def _tridiagonal_ql(d, e, Q):
+    """Eigenvalues of the tridiagonal (d, e[1:]) into d (e overwritten), its rotations applied to
+    the columns of Q (which then hold the eigenvectors). Returns False if an eigenvalue did not
+    converge."""
     n = d.shape[0]
     for i in range(1, n):
         e[i - 1] = e[i]
@@ -147,7 +147,7 @@ def _tridiagonal_ql(d, e, Q, vectors):
                 p = s * r
                 d[i + 1] = g + p
                 g = c * r - b
-                for k in range(n if vectors else 0):
+                for k in range(n):
                     f = Q[k, i + 1]
                     Q[k, i + 1] = s * Q[k, i] + c * f
                     Q[k, i] = c * Q[k, i] - s * f
@@ -172,7 +172,7 @@ def symmetric_eig(A, w, V):
             V[i, j] = A[i, j]
     e = np.empty(n)
     _householder_tridiagonal(V, w, e)
-    if not _tridiagonal_ql(w, e, V, True):
+    if not _tridiagonal_ql(w, e, V):
         w2, V2 = np.linalg.eigh(A)  # non-finite input: LAPACK's error, or its answer
         for i in range(n):
             w[i] = w2[i]
