@@ -31,6 +31,7 @@ from cloth.io.obj import save_obj
 from cloth.io.recorder import Recorder
 from cloth.io.states import save_state
 from cloth.io.stills import OBSTACLE_RGB, mesh_triangles, obstacle_triangles, render_still
+from cloth.physics.linsolve import resolve_method
 from cloth.simulation import Simulation, SimulationDiverged
 from cloth.view.factors import face_geometry, face_view_data, spatial_view_factor
 from cloth.view.viewdep import ViewParams
@@ -261,7 +262,8 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
             write_parquet_atomic(out_dir / "frames.parquet", frames)
         (out_dir / JOURNAL_FILE).unlink(missing_ok=True)  # frames.parquet holds every frame now
         summary = {"status": status, "message": message, "scene": scene.name, "notes": list(scene.notes),
-                   "stages": sim.stages.names(), "frames_requested": int(n_frames), **summarize(frames)}
+                   "stages": sim.stages.names(), "solver_method": resolve_method(sim.solver.method),
+                   "frames_requested": int(n_frames), **summarize(frames)}
         capped = capped_solves_note(summary, sim.solver.max_iterations)
         if capped is not None:  # never silent: the summary's notes, which the run prints
             summary["notes"].append(capped)

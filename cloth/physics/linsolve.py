@@ -1,25 +1,71 @@
-"""Linear solvers for the implicit step: block-Jacobi preconditioned CG, or a direct solve."""
+"""Linear solvers for the implicit step.
+
+- "cholesky": sparse Cholesky factorization (MKL PARDISO through pypardiso, nested-dissection
+  ordering). Its symbolic analysis is done once per sparsity pattern, that is once per remesh,
+  and every step refactors numerically only. Its cost grows close to linearly with the mesh
+  (experiments.benchmark), where block-Jacobi CG needs about sqrt(faces) iterations.
+- "pcg": block-Jacobi preconditioned conjugate gradient (numba), capped at `max_iterations`.
+- "direct": SuperLU through scipy, refactored from scratch every step (a reference).
+- "auto" (the default): "cholesky" where pypardiso loads (x86_64), otherwise "pcg".
+
+Every method answers to the same tolerance on the relative residual |b - A x| / |b|: a
+factorization whose solution misses it (a matrix that is not positive definite, say) hands its
+solution to PCG as a warm start, and the step's record counts the iterations that took.
+"""
 
 from __future__ import annotations
 
+import copy
+import functools
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numba import njit
 
 from cloth.physics.assembly import SparsityPattern, bsr_matvec
 
+METHODS = ("auto", "cholesky", "pcg", "direct")
+
+
+@functools.cache
+def _pardiso_template():
+    """A PARDISO handle whose library lookup (which runs the linker's tools: 0.25 s) the
+    factorizations share; None where pypardiso or MKL does not load."""
+    try:
+        import pypardiso  # noqa: PLC0415 - optional dependency (MKL: x86_64 only)
+
+        return pypardiso.PyPardisoSolver(mtype=CholeskyFactor.SPD)
+    except (ImportError, OSError):
+        return None
+
+
+def cholesky_available() -> str | None:
+    """None when the Cholesky solver can run here, otherwise why it cannot."""
+    if _pardiso_template() is None:
+        return "pypardiso (MKL PARDISO) does not load here (it needs x86_64 and the mkl package)"
+    return None
+
+
+def resolve_method(method: str) -> str:
+    """The method a run uses: "auto" becomes "cholesky" where it can run, else "pcg"."""
+    if method == "auto":
+        return "cholesky" if cholesky_available() is None else "pcg"
+    return method
+
 
 @dataclass(frozen=True)
 class SolverOptions:
-    method: str = "pcg"  # "pcg" (block-Jacobi preconditioned conjugate gradient) or "direct"
-    tolerance: float = 1e-6  # relative residual |b - A x| / |b| at which PCG stops
+    method: str = "auto"  # one of METHODS (module docstring)
+    tolerance: float = 1e-6  # relative residual |b - A x| / |b| every method must reach
     max_iterations: int = 1000  # PCG iteration cap; the record says when it is hit
 
     def __post_init__(self) -> None:
-        if self.method not in ("pcg", "direct"):
-            raise ValueError(f"solver.method must be 'pcg' or 'direct', got {self.method!r}")
+        if self.method not in METHODS:
+            raise ValueError(f"solver.method must be one of {', '.join(METHODS)}, got {self.method!r}")
+        if self.method == "cholesky" and (why := cholesky_available()) is not None:
+            raise ValueError(f"solver.method=cholesky: {why}; use solver=pcg")
         if not self.tolerance > 0:
             raise ValueError(f"solver.tolerance must be > 0, got {self.tolerance}")
         if self.max_iterations < 1:
@@ -118,21 +164,138 @@ def pcg(indptr, indices, diag, data, b, x, tol, max_iter):
 
 
 def solve_capped(options: SolverOptions, iterations: int, residual: float) -> bool:
-    """True for an iterative solve that stopped at its iteration cap with its residual still above
-    the tolerance: an inexact step, which the frame's record counts (solves_capped)."""
-    return options.method == "pcg" and iterations >= options.max_iterations and residual > options.tolerance
+    """True for a solve that stopped at its iteration cap with its residual still above the
+    tolerance: an inexact step, which the frame's record counts (solves_capped). A factorization
+    that misses the tolerance continues as PCG, so the test is the same for every method."""
+    return (options.method != "direct" and iterations >= options.max_iterations
+            and residual > options.tolerance)
+
+
+@njit(cache=True)
+def _upper_triangle(bindptr, bindices):
+    """CSR pattern of the upper triangle of the scalar (3n x 3n) matrix of a block-CSR pattern
+    whose block columns are sorted within each row, and for each of its entries the flat index
+    into the block data (n_blocks * 9): returns (indptr, indices, map)."""
+    n = bindptr.shape[0] - 1
+    indptr = np.zeros(3 * n + 1, dtype=np.int32)
+    for i in range(n):
+        upper_blocks = 0
+        for k in range(bindptr[i], bindptr[i + 1]):
+            if bindices[k] > i:
+                upper_blocks += 1
+        for a in range(3):
+            indptr[3 * i + a + 1] = indptr[3 * i + a] + (3 - a) + 3 * upper_blocks
+    nnz = indptr[3 * n]
+    indices = np.empty(nnz, dtype=np.int32)
+    flat = np.empty(nnz, dtype=np.int64)
+    for i in range(n):
+        for a in range(3):
+            pos = indptr[3 * i + a]
+            for k in range(bindptr[i], bindptr[i + 1]):
+                j = bindices[k]
+                if j < i:
+                    continue
+                for b in range(a if j == i else 0, 3):
+                    indices[pos] = 3 * j + b
+                    flat[pos] = 9 * k + 3 * a + b
+                    pos += 1
+    return indptr, indices, flat
+
+
+class CholeskyFactor:
+    """Sparse Cholesky factorization of the block system of one sparsity pattern.
+
+    The upper triangle of the scalar matrix, in CSR order, is gathered from the block data
+    through an index map built once; PARDISO's analysis (ordering and symbolic factorization,
+    phase 11) runs once, and each `solve` refactors numerically (phase 22) and substitutes
+    (phase 33). A new pattern (after a remesh) gets a new factor.
+    """
+
+    SPD = 2  # PARDISO matrix type: real symmetric positive definite
+
+    def __init__(self, pattern: SparsityPattern):
+        indptr, indices, self.map = _upper_triangle(pattern.indptr, pattern.indices)
+        self.n = 3 * pattern.n_nodes
+        self.upper = sp.csr_matrix((np.empty(self.map.shape[0]), indices, indptr), shape=(self.n, self.n))
+        self._new_handle()
+
+    def _new_handle(self) -> None:
+        self._pardiso = copy.copy(_pardiso_template())  # the library, with a handle of its own:
+        self._pardiso.pt = np.zeros_like(self._pardiso.pt)
+        self._pardiso.iparm = np.zeros_like(self._pardiso.iparm)
+        self._analysed = False
+
+    def __getstate__(self) -> dict:
+        """A copy (deepcopy, pickle: a checkpointed or copied simulation) keeps the pattern's
+        gather map and analyses again on its first solve: PARDISO's handle is memory of this
+        process."""
+        return {"map": self.map, "upper": self.upper, "n": self.n}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._new_handle()
+
+    def _phase(self, phase: int, rhs: np.ndarray) -> np.ndarray:
+        self._pardiso.set_phase(phase)
+        # pypardiso documents phases as its advanced usage; _call_pardiso runs the set phase
+        return self._pardiso._call_pardiso(self.upper, rhs)
+
+    def solve(self, data: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """x with A x = b for the block data `data` (n_blocks, 3, 3); b is (n, 3).
+        Raises pypardiso's PyPardisoError when the factorization fails (A not positive definite)."""
+        np.take(data.reshape(-1), self.map, out=self.upper.data)
+        rhs = np.asfortranarray(b.reshape(-1))
+        if not self._analysed:
+            self._phase(11, rhs)
+            self._analysed = True
+        self._phase(22, rhs)
+        return self._phase(33, rhs).reshape(-1, 3)
+
+    def __del__(self):
+        try:
+            self._pardiso.free_memory(everything=True)
+        except Exception:  # noqa: BLE001 - interpreter shutdown: nothing left to free
+            pass
+
+
+def _relative_residual(pattern: SparsityPattern, data: np.ndarray, b: np.ndarray, x: np.ndarray) -> float:
+    r = np.empty_like(b)
+    bsr_matvec(pattern.indptr, pattern.indices, data, x, r)
+    bn = np.linalg.norm(b)
+    return float(np.linalg.norm(b - r) / bn) if bn > 0 else 0.0
+
+
+def _cholesky_of(pattern: SparsityPattern) -> CholeskyFactor:
+    factor = getattr(pattern, "_cholesky", None)
+    if factor is None:
+        factor = CholeskyFactor(pattern)
+        pattern._cholesky = factor  # lives and dies with the pattern, i.e. until the next remesh
+    return factor
 
 
 def solve(pattern: SparsityPattern, data: np.ndarray, b: np.ndarray, options: SolverOptions,
           x0: np.ndarray | None = None) -> tuple[np.ndarray, int, float]:
-    """Solve the block system; returns (x (n,3), iterations, relative residual)."""
-    if options.method == "direct":
+    """Solve the block system; returns (x (n,3), PCG iterations, relative residual).
+
+    A direct method reports 0 iterations when it meets the tolerance by itself."""
+    method = resolve_method(options.method)
+    if method == "direct":
         A = pattern.to_scipy(data)
         x = spla.spsolve(A.tocsc(), b.reshape(-1)).reshape(-1, 3)
-        r = b.reshape(-1) - A @ x.reshape(-1)
-        bn = np.linalg.norm(b)
-        return x, 1, float(np.linalg.norm(r) / bn) if bn > 0 else 0.0
+        return x, 0, _relative_residual(pattern, data, b, x)
     x = np.zeros_like(b) if x0 is None else x0.copy()
+    if method == "cholesky":
+        from pypardiso.pardiso_wrapper import PyPardisoError  # noqa: PLC0415 - optional dependency
+
+        try:
+            xc = _cholesky_of(pattern).solve(data, b)
+        except PyPardisoError:
+            xc = None  # not positive definite to PARDISO: PCG from the warm start
+        if xc is not None and np.all(np.isfinite(xc)):
+            res = _relative_residual(pattern, data, b, xc)
+            if res <= options.tolerance:
+                return xc, 0, res
+            x = xc
     it, res = pcg(pattern.indptr, pattern.indices, pattern.diag, data, b, x,
                   options.tolerance, options.max_iterations)
     return x, int(it), float(res)
