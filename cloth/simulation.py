@@ -171,6 +171,8 @@ class Simulation:
         self.frame = 0
         self.time = 0.0
         self.steps_taken = 0
+        self.dt = scene.dt  # s: this frame's step (a view-dependent run may take fewer, longer steps out of view)
+        self._substep = 0  # steps taken in the current frame
         self.intersections_pending = 0  # crossings the last untangling left (it runs again next frame)
         self.faces_compensated = 0
         self.last_energy: dict = {}
@@ -247,7 +249,8 @@ class Simulation:
             for h in scene.handles:
                 mesh.node_x[h.nodes] = h.targets(t)
         self.frame, self.time = frame, t
-        self.steps_taken = frame * scene.steps_per_frame
+        self.steps_taken = frame * scene.steps_per_frame  # as if every frame took the scene's steps
+        self.dt, self._substep = scene.dt, 0
         self.intersections_pending = 0
         self._inside_at_start = None
         self.rebuild()
@@ -264,8 +267,8 @@ class Simulation:
         time, the paper's Time/Frame), wall_s = the whole call (the runner adds its I/O to it)."""
         t_start = time.perf_counter()
         timings = {p: 0.0 for p in PHASES}
-        stats = {"solver_iterations": 0, "solver_iterations_max": 0, "solver_residual": 0.0, "solves_capped": 0,
-                 "contacts": 0,
+        stats = {"steps": 0, "solver_iterations": 0, "solver_iterations_max": 0, "solver_residual": 0.0,
+                 "solves_capped": 0, "contacts": 0,
                  **REMESH_RECORD, **VIEW_RECORD, **COLLISION_RECORD}
         stages = self.stages
         changed = stages.remesh and self.remesher.remesh(self, timings, stats)
@@ -275,7 +278,10 @@ class Simulation:
             self._timed(timings, "collisions", self.untangle, stats)
         if stages.buckling:
             self._timed(timings, "sizing", self.update_buckling)
-        for _ in range(self.scene.steps_per_frame):
+        n_steps = self.scene.steps_per_frame if self.remesher is None else self.remesher.steps_for_frame(self)
+        self.dt, self._substep = self.scene.frame_time / n_steps, 0
+        stats["steps"] = n_steps
+        for _ in range(n_steps):
             self.step(timings, stats)
         self.frame += 1
         record = self.state_record()
@@ -290,7 +296,7 @@ class Simulation:
 
     def step(self, timings: dict, stats: dict) -> None:
         """One implicit step with its contact and collision stages."""
-        stages, mesh, h = self.stages, self.scene.mesh, self.scene.dt
+        stages, mesh, h = self.stages, self.scene.mesh, self.dt
         collide = stages.self_collision or stages.obstacle_ccd
         x_start = mesh.node_x.copy() if collide else None
         y_start = self._mesh_obstacle_positions() if stages.obstacle_ccd else None
@@ -344,7 +350,7 @@ class Simulation:
 
     def _implicit_step(self, contacts, timings: dict, stats: dict) -> None:
         """Implicit Euler over the force terms (physics and solve timed apart); advances time."""
-        scene, mesh, h = self.scene, self.scene.mesh, self.scene.dt
+        scene, mesh, h = self.scene, self.scene.mesh, self.dt
         m = scene.material
         damping = self.stages.damping
         s, self.last_dv = implicit_euler_step(
@@ -354,10 +360,11 @@ class Simulation:
             self._fixed_targets(self.time + h), self.solver, self.last_dv, contacts,
         )
         self.steps_taken += 1
+        self._substep += 1
         # frame start + steps within it: no round-off drift over long runs, so that a frame's
         # time is exactly frame * frame_time (camera cuts and keyframes are given at such times)
-        k = self.steps_taken - self.frame * scene.steps_per_frame
-        last = k == scene.steps_per_frame
+        k = self._substep
+        last = abs(k * h - scene.frame_time) <= 1e-9 * scene.frame_time  # the frame's last step
         self.time = (self.frame + 1) * scene.frame_time if last else self.frame * scene.frame_time + k * h
         timings["physics"] += s.time_physics_s
         timings["solve"] += s.time_solve_s
@@ -373,7 +380,7 @@ class Simulation:
         mesh, scene = self.scene.mesh, self.scene
         self.obstacle_set.set_time(self.time)
         c = self.contact(mesh.node_x, mesh.node_v, mesh.node_pinned, self.obstacle_set,
-                         scene.thickness, scene.friction, scene.dt)
+                         scene.thickness, scene.friction, self.dt)
         stats["contacts"] = max(stats["contacts"], int(c.get("contacts", 0)))
 
     def _mesh_obstacle_positions(self) -> list:

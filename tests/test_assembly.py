@@ -10,6 +10,7 @@ import scipy.sparse as sp
 from cloth.core.mesh import grid_mesh
 from cloth.physics.assembly import SparsityPattern, apply_dirichlet, bsr_matvec, scatter_blocks, scatter_forces
 from cloth.physics.linsolve import (
+    AUTO_CHOLESKY_UNKNOWNS,
     SolverOptions,
     _upper_triangle,
     cholesky_available,
@@ -155,8 +156,11 @@ def test_cholesky_on_an_indefinite_matrix_continues_as_pcg_and_is_counted_when_c
 def test_solver_method_is_checked_before_any_work():
     with pytest.raises(ValueError, match="solver.method must be one of auto, cholesky, pcg, direct"):
         SolverOptions("lu")
-    assert resolve_method("auto") == ("cholesky" if cholesky_available() is None else "pcg")
-    assert resolve_method("pcg") == "pcg"
+    factorizes = cholesky_available() is None
+    assert resolve_method("auto", AUTO_CHOLESKY_UNKNOWNS) == ("cholesky" if factorizes else "pcg")
+    assert resolve_method("auto", AUTO_CHOLESKY_UNKNOWNS - 3) == "pcg"  # a tiny system: CG is cheaper
+    assert resolve_method("auto") == ("cholesky+pcg" if factorizes else "pcg")
+    assert resolve_method("pcg", 10**6) == "pcg"
 
 
 @needs_cholesky

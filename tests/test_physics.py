@@ -347,7 +347,7 @@ def test_a_solve_stopped_at_its_iteration_cap_is_recorded_and_noted(tmp_path):
     assert not solve_capped(SolverOptions(method="direct", max_iterations=1), 1, 1e-3)
     for cap, capped in ((2, True), (1000, False)):
         out = tmp_path / f"cap{cap}"
-        summary = run_config(out, "frames=2", f"solver.max_iterations={cap}", *QUIET)
+        summary = run_config(out, "frames=2", "solver=pcg", f"solver.max_iterations={cap}", *QUIET)
         frames = read_frames(out)
         assert (frames["solves_capped"] > 0).all() == capped and (frames["solves_capped"] > 0).any() == capped
         assert summary["solves_capped_total"] == int(frames["solves_capped"].sum())

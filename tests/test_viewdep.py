@@ -233,3 +233,46 @@ def test_the_recording_holds_the_camera_as_a_pinhole_with_its_pose(tmp_path):
     assert "Transform3D:translation" in columns("world/camera") and "Transform3D:mat3x3" in columns("world/camera")
     assert "Mesh3D:vertex_colors" in columns("world/cloth")
     assert "Mesh3D:vertex_positions" in columns("world/obstacles/sphere")
+
+
+# A camera 20 m below the ground looking further down: the sheet is behind it, far beyond the
+# margin, in every shot that uses it.
+AWAY = ["camera.shots.0.camera.position=[0.3,0.0,-20.0]", "camera.shots.0.camera.look_at=[0.3,0.0,-40.0]"]
+AWAY_FRAMES = 12
+CUT_IN_FRAME = 10  # the second shot (sheet_cut's -x half, in view) starts here: 0.4 s
+
+
+def test_a_cloth_wholly_out_of_view_takes_fewer_steps_and_skips_idle_remeshes():
+    sim = build_sim(SPHERE, "mode=viewdep", "camera=sheet_cut", *AWAY, "camera.shots.1.start=0.4")
+    steps, spf = [], sim.scene.steps_per_frame
+    rows = []
+    while sim.frame < AWAY_FRAMES:
+        rows.append(sim.advance_frame())
+        # the frame's end is exact whatever the number of steps (cuts are given at frame times)
+        assert sim.time == sim.frame * sim.scene.frame_time
+    steps = [r["steps"] for r in rows]
+    out = [r["character_out_of_view"] for r in rows]
+    # out of view while the cut (and the anticipation window before it) is ahead: 2 steps
+    window = int(np.ceil(sim.remesher.view.anticipation_frames)) + 1
+    first_in = CUT_IN_FRAME - window
+    assert all(o == 1 and s == sim.remesher.view.out_of_view_steps for o, s in zip(out[:first_in], steps[:first_in]))
+    assert all(o == 0 and s == spf for o, s in zip(out[CUT_IN_FRAME - 1:], steps[CUT_IN_FRAME - 1:]))
+    # an out-of-view remesh that changed nothing is not repeated while the cloth stays out of view
+    skipped = [r["remesh_skipped"] for r in rows]
+    assert sum(skipped[:first_in]) >= 1 and sum(skipped[CUT_IN_FRAME - 1:]) == 0
+    assert all(skipped[i] == 0 or rows[i - 1]["remesh_skipped"] or rows[i - 1]["remeshed"] for i in range(1, len(rows)))
+    assert np.all(np.isfinite(sim.mesh.node_x))
+
+
+def test_in_view_and_with_the_economy_off_every_frame_takes_the_scenes_steps():
+    sim = build_sim(SPHERE, "mode=viewdep", "camera=sheet_half")
+    rows = [sim.advance_frame() for _ in range(3)]
+    assert [r["steps"] for r in rows] == [sim.scene.steps_per_frame] * 3
+    assert not any(r["character_out_of_view"] for r in rows)
+    sim = build_sim(SPHERE, "mode=viewdep", "camera=sheet_cut", *AWAY, "mode.view.out_of_view_steps=null",
+                    "mode.view.skip_idle_remesh=false")
+    rows = [sim.advance_frame() for _ in range(3)]
+    assert [r["steps"] for r in rows] == [sim.scene.steps_per_frame] * 3
+    assert all(r["character_out_of_view"] for r in rows) and not any(r["remesh_skipped"] for r in rows)
+    with pytest.raises(ConfigError, match="out_of_view_steps"):
+        build_sim(SPHERE, "mode=viewdep", "camera=sheet_half", "mode.view.out_of_view_steps=0")

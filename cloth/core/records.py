@@ -22,7 +22,10 @@ REMESH_RECORD = {"remeshed": 0, "remesh_splits": 0, "remesh_collapses": 0, "reme
 
 # The view-dependent sizing (NaN in the other modes).
 VIEW_RECORD = {"view_factor_min": float("nan"), "view_factor_mean": float("nan"), "view_factor_max": float("nan"),
-               "contact_floor_faces": 0}
+               "contact_floor_faces": 0,
+               # mode=viewdep, a character wholly beyond the margin (cloth.view.viewdep): 1 when so,
+               # and 1 when its remesh was skipped because the last one there changed nothing
+               "character_out_of_view": 0, "remesh_skipped": 0}
 
 # One collision pass of a step (cloth.collision.selfcollision): cloth-cloth pairs (self_*) and,
 # with triangle-mesh obstacles in the same pass, cloth-obstacle pairs (obstacle_*).

@@ -140,6 +140,11 @@ class AdaptiveRemesher:
             raise ValueError(f"remesh every must be >= 1 frame, got {self.every}")
 
     # the one method a sizing variant overrides (mode=viewdep)
+    def steps_for_frame(self, sim) -> int:
+        """Implicit steps of the coming frame: the scene's (mode=viewdep takes fewer for a
+        character wholly out of view, cloth.view.viewdep)."""
+        return sim.scene.steps_per_frame
+
     def face_sizing(self, sim) -> np.ndarray:
         obstacles = sim.obstacle_set if sim.contact is not None else None
         return physics_face_sizing(sim.mesh, self.sizing, obstacles)

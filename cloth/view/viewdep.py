@@ -19,6 +19,7 @@ reactive: eq 3 for the camera at the remesh time t (the paper's Fig. 3, below).
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -54,6 +55,12 @@ class ViewParams:
     # obstacle are not coarsened past contact_size (m) by the view factor; None switches it off.
     contact_size: float | None = 0.2
     contact_distance: float = 0.1
+    # A character wholly out of view (not in the paper): every node farther than the margin from
+    # the frustum of the camera now and over the frame and the anticipation window. Its frames
+    # take `out_of_view_steps` implicit steps (None: the scene's steps_per_frame), and its remesh
+    # is skipped while the last remesh there changed nothing (`skip_idle_remesh`).
+    out_of_view_steps: int | None = 2
+    skip_idle_remesh: bool = True
 
     def __post_init__(self):
         for name in ("nu_front", "nu_back", "nu_out"):
@@ -76,6 +83,8 @@ class ViewParams:
             raise ViewError(f"view.contact_size must be > 0 m (or null: off), got {self.contact_size}")
         if not self.contact_distance >= 0:
             raise ViewError(f"view.contact_distance must be >= 0 m, got {self.contact_distance}")
+        if self.out_of_view_steps is not None and int(self.out_of_view_steps) < 1:
+            raise ViewError(f"view.out_of_view_steps must be >= 1 (or null: the scene's), got {self.out_of_view_steps}")
 
 
 @dataclass
@@ -89,6 +98,50 @@ class ViewDependentRemesher(AdaptiveRemesher):
         if self.camera is None:
             raise ViewError("mode=viewdep needs a camera path (camera=...)")
         self.last = {}
+        self._idle = False  # the last remesh was of a character out of view and changed nothing
+
+    def character_out_of_view(self, sim) -> bool:
+        """True when the whole cloth stays farther than the margin from the frustum of every
+        camera its sizing looks at: now, at the frame's end and over the anticipation window.
+
+        The cloth is bounded by a sphere about its bounding box's centre, grown by the distance
+        its fastest node covers in a frame and the window (the motion the test cannot see)."""
+        x, v = sim.mesh.node_x, sim.mesh.node_v
+        centre = 0.5 * (x.min(axis=0) + x.max(axis=0))
+        horizon = self.frame_time + (self.taus()[-1] if self.view.anticipation else 0.0)
+        speed = float(np.sqrt((v * v).sum(axis=1).max())) if len(v) else 0.0
+        radius = float(np.sqrt(((x - centre) ** 2).sum(axis=1).max())) + speed * horizon
+        times = [sim.time, sim.time + self.frame_time]
+        if self.view.anticipation:
+            times += list(sim.time + self.frame_time + self.taus())
+        for t in times:
+            if self.camera.camera_at(t).distance_to_frustum(centre[None])[0] - radius <= self.view.margin:
+                return False
+        return True
+
+    def steps_for_frame(self, sim) -> int:
+        steps = sim.scene.steps_per_frame
+        if self.view.out_of_view_steps is None or int(self.view.out_of_view_steps) >= steps:
+            return steps
+        return int(self.view.out_of_view_steps) if self.character_out_of_view(sim) else steps
+
+    def remesh(self, sim, timings: dict, stats: dict) -> bool:
+        """AdaptiveRemesher's remesh, skipped for a character out of view whose last remesh
+        there changed nothing (its sizing is nu_out^2 M everywhere: the same coarsest mesh)."""
+        if sim.frame % int(self.every) != 0:
+            return False
+        t0 = time.perf_counter()
+        out = self.character_out_of_view(sim)
+        timings["sizing"] += time.perf_counter() - t0
+        stats["character_out_of_view"] = int(out)
+        if out and self._idle and self.view.skip_idle_remesh:
+            stats["remesh_skipped"] = 1
+            return False
+        self.last = {}
+        changed = super().remesh(sim, timings, stats)
+        stats.update(self.last)
+        self._idle = out and not changed
+        return changed
 
     def taus(self) -> np.ndarray:
         """Sample times tau in [0, T] (seconds), tau_0 = 0, at least `samples_per_frame` per frame."""
@@ -160,8 +213,3 @@ class ViewDependentRemesher(AdaptiveRemesher):
         self.contact_floor_faces = int(near.sum())
         return M
 
-    def remesh(self, sim, timings: dict, stats: dict) -> bool:
-        self.last = {}
-        changed = super().remesh(sim, timings, stats)
-        stats.update(self.last)
-        return changed
