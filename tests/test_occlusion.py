@@ -173,9 +173,19 @@ def test_bad_occlusion_values_are_named(bad):
         ViewParams(**bad)
 
 
-def test_a_bad_occlusion_scale_in_the_config_names_the_key():
-    with pytest.raises(ConfigError, match="mode.view.*occlusion_scale"):
-        build_sim("scene=sheet_on_sphere", "mode=viewdep", "camera=sheet_half", "mode.view.occlusion_scale=0")
+@pytest.mark.parametrize("override, key", [("mode.view.occlusion_scale=0", "occlusion_scale"),
+                                           ("mode.view.occlusion_scale=-1", "occlusion_scale"),
+                                           ("mode.view.occlusion=maybe", "occlusion")])
+def test_bad_occlusion_settings_in_the_config_name_the_key(override, key):
+    with pytest.raises(ConfigError, match=rf"mode\.view\.(view\.)?{key} "):
+        build_sim("scene=sheet_on_sphere", "mode=viewdep", "camera=sheet_half", override)
+
+
+def test_occlusion_is_off_by_default():
+    """The paper's rule until the accuracy study decides: conf/mode/viewdep.yaml and ViewParams agree."""
+    rem = build_sim("scene=sheet_on_sphere", "mode=viewdep", "camera=sheet_half").remesher
+    assert rem.view.occlusion is False and rem.view.occlusion_scale == 0.25
+    assert ViewParams().occlusion is False and ViewParams().occlusion_scale == 0.25
 
 
 def test_occluders_are_the_obstacles_display_meshes():

@@ -47,9 +47,10 @@ from cloth.view.zbuffer import ScreenImage, render_frame
 # .capsule_tessellation): its facets lie inside the capsule by at most r (1 - cos(pi / 12)) =
 # 3.4 % of the radius, so the body is drawn slightly thin and can only hide less than it should.
 OCCLUDER_SEGMENTS = 12
-# Depth tolerance, part 1: two surfaces at contact distance are one thickness h apart (cloth on
-# cloth under self-collision, cloth on an obstacle); 2 h keeps a face within contact distance
-# of the surface in front of it, plus the solver's overshoot of up to h, from counting as hidden.
+# Depth tolerance, part 1, in thicknesses h: surfaces in contact are about h apart (contact leaves
+# cloth nodes h off the obstacles, self-collision keeps layers h apart, and the facets of a
+# tessellated obstacle lie inside it); twice that keeps cloth lying on other cloth, whose faces
+# sag a little past h between their nodes, from counting as hidden by it.
 OCCLUSION_THICKNESS_FACTOR = 2.0
 # Depth tolerance, part 2, in z-buffer pixels at the sample's depth: the buffer holds the nearest
 # surface at pixel centres; at a bend of the cloth a neighbouring face, not the sample's own
