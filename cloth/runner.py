@@ -105,7 +105,7 @@ def capped_solves_note(summary: dict, max_iterations: int) -> str | None:
 CROWD_SUM_COLUMNS = ("faces", "verts", "nodes", "sim_s", "wall_s", "solver_iterations", "solves_capped", "contacts",
                      "faces_in_view",
                      "faces_back_facing", "faces_out_of_frame", "faces_compensated", "kinetic_energy_j", "remeshed",
-                     "faces_sized", "faces_at_size_min", "faces_at_size_max")
+                     "faces_sized", "faces_at_size_min", "faces_at_size_max", "faces_occluded")
 
 
 def combine_crowd(character_dirs: list, out_dir: Path) -> tuple[pd.DataFrame, dict]:

@@ -10,6 +10,8 @@ obstacles with per-frame vertex positions answer the same interface (cloth.colli
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from numba import njit
 
@@ -286,7 +288,7 @@ def capsule_tessellation(a, b, radius: float, segments: int = 12):
     """(vertices, faces) of a closed capsule around segment ab: `segments` around the axis,
     max(2, segments // 4) rings per hemispherical cap, single vertices at the poles, outward
     wound. Every vertex lies on the capsule (the facets are inside it, by at most about
-    radius * (1 - cos(pi / segments)))."""
+    radius * (1 - cos(pi / segments))). The faces depend only on `segments` (capsule_faces)."""
     a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
     n = max(int(segments), 3)
     rings = max(2, n // 4)
@@ -298,14 +300,21 @@ def capsule_tessellation(a, b, radius: float, segments: int = 12):
     v = np.cross(w, u)
     phi = 2 * np.pi * np.arange(n) / n
     around = np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v  # (n, 3)
-    verts = [b + radius * w]  # pole at b
     lat = np.linspace(0, np.pi / 2, rings + 1)[1:]  # from the b pole down to the equator
-    for th in lat:
-        verts.extend(b + radius * (np.cos(th) * w + np.sin(th) * around))
-    for th in lat[::-1]:  # equator at a, then up to the a pole
-        verts.extend(a + radius * (-np.cos(th) * w + np.sin(th) * around))
-    verts.append(a - radius * w)
-    verts = np.asarray(verts)
+    cos, sin = np.cos(lat)[:, None, None], np.sin(lat)[:, None, None]
+    top = b + radius * (cos * w + sin * around)  # (rings, n, 3): rings from the b pole to the equator
+    bottom = a + radius * (-cos[::-1] * w + sin[::-1] * around)  # equator at a, then up to the a pole
+    verts = np.concatenate([(b + radius * w)[None], top.reshape(-1, 3), bottom.reshape(-1, 3),
+                            (a - radius * w)[None]])
+    return verts, capsule_faces(n).copy()
+
+
+@lru_cache(maxsize=8)
+def capsule_faces(segments: int) -> np.ndarray:
+    """(L, 3) int64 faces of capsule_tessellation with `segments` (>= 3) around (read-only):
+    a fan at each pole and two triangles per quad between consecutive rings."""
+    n = int(segments)
+    rings = max(2, n // 4)
     n_rings = 2 * rings
     ring = lambda r, j: 1 + r * n + (j % n)  # noqa: E731
     faces = [[0, ring(0, j), ring(0, j + 1)] for j in range(n)]
@@ -313,9 +322,11 @@ def capsule_tessellation(a, b, radius: float, segments: int = 12):
         for j in range(n):
             faces += [[ring(r, j), ring(r + 1, j), ring(r + 1, j + 1)],
                       [ring(r, j), ring(r + 1, j + 1), ring(r, j + 1)]]
-    last = len(verts) - 1
+    last = 1 + n_rings * n
     faces += [[last, ring(n_rings - 1, j + 1), ring(n_rings - 1, j)] for j in range(n)]
-    return verts, np.asarray(faces, dtype=np.int64)
+    out = np.asarray(faces, dtype=np.int64)
+    out.setflags(write=False)
+    return out
 
 
 class ObstacleSet:

@@ -20,9 +20,11 @@ REMESH_RECORD = {"remeshed": 0, "remesh_splits": 0, "remesh_collapses": 0, "reme
                  # the sizing field at its bounds (cloth.remeshing.sizing.sizing_at_bounds)
                  "faces_sized": 0, "faces_at_size_min": 0, "faces_at_size_max": 0, "edge_at_size_min_m": float("nan")}
 
-# The view-dependent sizing (NaN in the other modes).
+# The view-dependent sizing (NaN in the other modes). faces_occluded: faces in frame and facing the
+# camera that view.occlusion found hidden at the image's camera (tau = 0), so sized as back-facing
+# (0 with view.occlusion off and in the other modes).
 VIEW_RECORD = {"view_factor_min": float("nan"), "view_factor_mean": float("nan"), "view_factor_max": float("nan"),
-               "contact_floor_faces": 0,
+               "contact_floor_faces": 0, "faces_occluded": 0,
                # mode=viewdep, a character wholly beyond the margin (cloth.view.viewdep): 1 when so,
                # and 1 when its remesh was skipped because the last one there changed nothing
                "character_out_of_view": 0, "remesh_skipped": 0}

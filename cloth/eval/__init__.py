@@ -1,6 +1,7 @@
-"""Evaluation after the fact: the z-buffer rasteriser and the screen-space error measures that
-compare a run's saved states with a reference's. Never imported by the simulation.
+"""Evaluation after the fact: the screen-space error measures that compare a run's saved states
+with a reference's (through the z-buffer rasteriser of cloth.view.zbuffer). Never imported by the
+simulation.
 
-May import: ``cloth.core``, ``cloth.collision`` (BVH, closest points), ``cloth.view`` (camera)
+May import: ``cloth.core``, ``cloth.collision`` (BVH, closest points), ``cloth.view`` (camera, z-buffer)
 and ``cloth.io`` (states).
 """

@@ -4,6 +4,8 @@ Everything but `face_sizing` is AdaptiveRemesher's, so a measured speed-up is th
 
     physics sizing M with its own clamps (cloth.remeshing.sizing, as mode=adaptive)
     -> spatial view factor nu~ (eq 3) per face, from its centroid's distance to the frustum
+       (not in the paper, view.occlusion: a face in frame and front-facing that the obstacles or
+       the cloth hide counts as back-facing, cloth.view.occlusion)
     -> anticipation over [t, t + T] of the prescribed camera path (eq 4)
     -> silhouette resampling of nu (section 3.3)
     -> M~ = nu^2 M (eq 2)
@@ -15,6 +17,13 @@ Time convention: the remesh at the start of a frame makes the mesh that the fram
 its end, shows; so eq 4 is evaluated at the image time t_img = t + frame_time, with tau sampled
 `samples_per_frame` times per frame over [0, T]. With anticipation off the sizing is purely
 reactive: eq 3 for the camera at the remesh time t (the paper's Fig. 3, below).
+
+Occlusion and anticipation: the occlusion test runs for every tau sample's camera, like the
+front-facing test it amends, on the current geometry (the cloth and the obstacles at the remesh
+time t; nothing predicts where they will be). So a face hidden now but seen from the camera after
+a cut inside the window is refined ahead of the cut as eq 4 intends, and a face seen now that a
+future camera would not see keeps nu_front (eq 4 takes the maximum). Identical cameras (a static
+shot) are tested once per remesh.
 """
 
 from __future__ import annotations
@@ -26,7 +35,7 @@ import numpy as np
 
 from cloth.core.tensors import eig_apply
 from cloth.remeshing.adaptive import AdaptiveRemesher
-from cloth.view.camera import ViewError
+from cloth.view.camera import Camera, ViewError
 from cloth.view.factors import (
     anticipated_view_factor,
     face_geometry,
@@ -37,6 +46,7 @@ from cloth.view.factors import (
     screen_space_clamp,
     spatial_view_factor,
 )
+from cloth.view.occlusion import Occluders, obstacle_occluders, occluded_faces
 from cloth.view.paths import CameraPath
 
 
@@ -61,6 +71,10 @@ class ViewParams:
     # is skipped while the last remesh there changed nothing (`skip_idle_remesh`).
     out_of_view_steps: int | None = 2
     skip_idle_remesh: bool = True
+    # Occlusion (not in the paper, cloth.view.occlusion): a face in frame and front-facing that the
+    # obstacles or the cloth hide gets nu_back; the z-buffer is occlusion_scale x the camera's image.
+    occlusion: bool = False
+    occlusion_scale: float = 0.25  # z-buffer size / the camera's image size (1280 x 720 -> 320 x 180)
 
     def __post_init__(self):
         for name in ("nu_front", "nu_back", "nu_out"):
@@ -85,6 +99,20 @@ class ViewParams:
             raise ViewError(f"view.contact_distance must be >= 0 m, got {self.contact_distance}")
         if self.out_of_view_steps is not None and int(self.out_of_view_steps) < 1:
             raise ViewError(f"view.out_of_view_steps must be >= 1 (or null: the scene's), got {self.out_of_view_steps}")
+        if not isinstance(self.occlusion, (bool, np.bool_)):
+            raise ViewError(f"view.occlusion must be true or false, got {self.occlusion!r}")
+        if not (isinstance(self.occlusion_scale, (int, float)) and not isinstance(self.occlusion_scale, bool)
+                and np.isfinite(self.occlusion_scale)
+                and self.occlusion_scale > 0):
+            raise ViewError(f"view.occlusion_scale must be a finite number > 0 (z-buffer size / image size), "
+                            f"got {self.occlusion_scale!r}")
+
+
+def camera_key(camera: Camera) -> tuple:
+    """A hashable key of a camera's pose and image (equal keys: the same view)."""
+    vec = lambda v: tuple(float(x) for x in np.asarray(v, dtype=np.float64).reshape(-1))  # noqa: E731
+    return (vec(camera.position), vec(camera.look_at), vec(camera.up), float(camera.fov_y_deg), int(camera.width),
+            int(camera.height), float(camera.near), float(camera.far))
 
 
 @dataclass
@@ -151,33 +179,67 @@ class ViewDependentRemesher(AdaptiveRemesher):
         n = int(np.ceil(self.view.anticipation_frames * self.view.samples_per_frame))
         return np.linspace(0.0, T, n + 1)
 
-    def view_factors(self, mesh, t: float):
-        """(nu (F,), visible (F,), in_frame (F,), front (F,)) for the mesh at remesh time t."""
+    def view_factors(self, mesh, t: float, occluders: Occluders | None = None):
+        """(nu (F,), visible (F,), in_frame (F,), front (F,), occluded (F,)) for the mesh at remesh
+        time t. With `occluders` (view.occlusion on), a face in frame and front-facing that they or
+        the cloth hide counts as back-facing for eq 3, at each tau sample's camera (module
+        docstring); `occluded` is that test at the first camera (tau = 0) and `visible` is in
+        frame, front-facing and not occluded there."""
         p = self.view
         c, n = face_geometry(mesh)
+        tested = {}  # camera_key -> occluded (F,) bool: a static shot is tested once
         if p.anticipation:
             t_img = t + self.frame_time
             taus = self.taus()
             rows = []
             for k, tau in enumerate(taus):
-                d, front = face_view_data(self.camera.camera_at(t_img + tau), c, n)
+                d, front, hidden = self.face_visibility(self.camera.camera_at(t_img + tau), mesh, c, n, occluders,
+                                                        tested)
                 if k == 0:
-                    d0, front0 = d, front
-                rows.append(spatial_view_factor(d, front, p.nu_front, p.nu_back, p.nu_out, p.margin))
+                    d0, front0, hidden0 = d, front, hidden
+                rows.append(spatial_view_factor(d, front & ~hidden, p.nu_front, p.nu_back, p.nu_out, p.margin))
             T = p.anticipation_frames * self.frame_time
             nu = anticipated_view_factor(np.array(rows), taus, T)
         else:
-            d0, front0 = face_view_data(self.camera.camera_at(t), c, n)
-            nu = spatial_view_factor(d0, front0, p.nu_front, p.nu_back, p.nu_out, p.margin)
+            d0, front0, hidden0 = self.face_visibility(self.camera.camera_at(t), mesh, c, n, occluders, tested)
+            nu = spatial_view_factor(d0, front0 & ~hidden0, p.nu_front, p.nu_back, p.nu_out, p.margin)
         in_frame = d0 == 0
-        visible = in_frame & front0
+        visible = in_frame & front0 & ~hidden0
         nu = resample_silhouette(nu, visible, mesh.edge_faces, p.silhouette_threshold)
-        return nu, visible, in_frame, front0
+        return nu, visible, in_frame, front0, hidden0
+
+    def face_visibility(self, camera: Camera, mesh, centroids, normals, occluders: Occluders | None,
+                        tested: dict):
+        """(d (F,), front (F,), occluded (F,)) under one camera: eq 3's distance to the frustum and
+        front-facing test, and the faces in frame and front-facing that `occluders` or the cloth
+        hide (cloth.view.occlusion; all False without occluders). `tested` caches the occlusion by
+        camera (adds to it)."""
+        d, front = face_view_data(camera, centroids, normals)
+        if occluders is None:
+            return d, front, np.zeros_like(front)
+        key = camera_key(camera)
+        if key not in tested:
+            candidates = np.flatnonzero((d == 0) & front)
+            hidden = np.zeros_like(front)
+            hidden[candidates] = occluded_faces(camera, mesh.node_x, mesh.face_nodes, normals, candidates, occluders,
+                                                self.view.occlusion_scale)
+            tested[key] = hidden
+        return d, front, tested[key]
+
+    def occluders(self, sim) -> Occluders:
+        """The simulation's obstacles at its current time, for the occlusion test (none without the
+        obstacles effect; in a crowd only the character's own body, cloth.view.occlusion)."""
+        obstacles = ()
+        if sim.obstacle_set is not None:
+            sim.obstacle_set.set_time(sim.time)
+            obstacles = sim.obstacle_set.obstacles
+        return obstacle_occluders(obstacles, sim.scene.thickness)
 
     def face_sizing(self, sim) -> np.ndarray:
         M = super().face_sizing(sim)
         mesh = sim.mesh
-        nu, visible, in_frame, front = self.view_factors(mesh, sim.time)
+        occluders = self.occluders(sim) if self.view.occlusion else None
+        nu, visible, in_frame, front, occluded = self.view_factors(mesh, sim.time, occluders)
         M = scale_sizing(M, nu)
         if visible.any():
             t_view = sim.time + self.frame_time if self.view.anticipation else sim.time
@@ -187,7 +249,7 @@ class ViewDependentRemesher(AdaptiveRemesher):
         if self.view.contact_size is not None and sim.contact is not None:
             M = self.contact_floor(M, sim)
         self.last = {"view_factor_min": float(nu.min()), "view_factor_mean": float(nu.mean()),
-                     "view_factor_max": float(nu.max())}
+                     "view_factor_max": float(nu.max()), "faces_occluded": int(np.count_nonzero(occluded))}
         if self.view.contact_size is not None and sim.contact is not None:
             self.last["contact_floor_faces"] = self.contact_floor_faces
         return M
