@@ -2,6 +2,15 @@
 
     python -m experiments.benchmark [--resolutions 32 64 128 256] [--frames 6] [--warmup 12]
                                     [--solver auto|cholesky|pcg|direct] [--out DIR]
+    python -m experiments.benchmark --modes [--scene sheet_on_sphere] [--camera sheet_half]
+                                    [--frames 20] [--warmup 10] [--out DIR]
+
+`--modes` times the three modes on one scene (Hydra's config, `scale=small`) at matched mean
+faces: mode=adaptive runs first, and the fixed mesh's resolution_factor is set so that its faces
+equal adaptive's mean; mode=viewdep runs with `--camera`. It prints and writes (`modes.csv`)
+microseconds per face per step of every phase (sizing, remeshing with its pop filter, physics,
+solve, collisions), so that the adaptive modes' overhead per face is visible, and the ratio of
+adaptive's frame time to the fixed mesh's.
 
 A benchmark, not a test: it prints ratios measured in one run and writes
 `<out>/<timestamp>/steps.csv` (default out: results/benchmark) (one row per resolution: seconds per step by phase,
@@ -31,7 +40,7 @@ import cloth.physics.assembly
 import cloth.physics.forces
 import cloth.physics.integrator
 from cloth.core.material import Material
-from cloth.core.records import PHASES
+from cloth.core.records import PHASES, SIM_PHASES
 from cloth.io.manifest import environment_manifest, write_json_atomic, write_text_atomic
 from cloth.physics.linsolve import METHODS, SolverOptions, resolve_method
 from cloth.scenes.registry import build_scene
@@ -39,6 +48,7 @@ from cloth.simulation import Simulation
 
 COTTON = dict(name="cotton", density=0.12, youngs_modulus=2.0e3, poisson_ratio=0.3,
               bending_stiffness=5e-6, damping_mass=0.05, damping_stiffness=2e-3)
+CONF = Path(__file__).resolve().parents[1] / "conf"
 KERNEL_MODULES = (cloth.physics.assembly, cloth.collision.contact, cloth.physics.forces, cloth.physics.integrator,
                   cloth.collision.obstacles)
 
@@ -100,22 +110,88 @@ def bench(resolution: int, frames: int, warmup: int, solver: SolverOptions) -> d
     return out
 
 
+def _time_mode(overrides: list[str], frames: int, warmup: int) -> pd.DataFrame:
+    """The timed frames' records of one run built from conf/ with `overrides` (after `warmup`)."""
+    from hydra import compose, initialize_config_dir  # noqa: PLC0415 - import cost: --modes only
+
+    from experiments.build import build_simulation  # noqa: PLC0415 - import cost: --modes only
+
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=overrides)
+    sim, _ = build_simulation(cfg)
+    for _ in range(warmup):
+        sim.advance_frame()
+    return pd.DataFrame([sim.advance_frame() for _ in range(frames)])
+
+
+def mode_row(mode: str, df: pd.DataFrame) -> dict:
+    """Per-face-per-step cost of each phase of one mode's timed frames."""
+    face_steps = float((df["faces"] * df["steps"]).sum())
+    row = {"mode": mode, "faces_mean": float(df["faces"].mean()), "steps": int(df["steps"].sum()),
+           "s_per_frame": float(df["sim_s"].mean())}
+    for p in SIM_PHASES:
+        row[f"{p}_us_per_face_step"] = 1e6 * float(df[f"time_{p}_s"].sum()) / face_steps
+    row["us_per_face_step"] = 1e6 * float(df["sim_s"].sum()) / face_steps
+    return row
+
+
+def bench_modes(scene: str, camera: str, frames: int, warmup: int, extra: list[str]) -> pd.DataFrame:
+    base = [f"scene={scene}", "scale=small", *extra]
+    probe = _time_mode([*base, "mode=nonadaptive"], 1, 0)  # the preset's fixed mesh: faces at factor 1
+    adaptive = _time_mode([*base, "mode=adaptive"], frames, warmup)
+    factor = float(np.sqrt(adaptive["faces"].mean() / probe["faces"].iloc[0]))
+    fixed = _time_mode([*base, "mode=nonadaptive", f"resolution_factor={factor:.4f}"], frames, warmup)
+    viewdep = _time_mode([*base, "mode=viewdep", f"camera={camera}"], frames, warmup)
+    rows = [mode_row("nonadaptive", fixed), mode_row("adaptive", adaptive), mode_row("viewdep", viewdep)]
+    out = pd.DataFrame(rows)
+    out.attrs["resolution_factor"] = factor
+    return out
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--resolutions", type=int, nargs="+", default=[32, 64, 128, 256],
                         help="cells per side: 2*r^2 faces (32 -> 2k, 64 -> 8k, 128 -> 32k, 256 -> 128k)")
-    parser.add_argument("--frames", type=int, default=6, help="timed frames per resolution")
-    parser.add_argument("--warmup", type=int, default=12, help="untimed frames before timing")
+    parser.add_argument("--frames", type=int, default=None, help="timed frames per run (6; --modes: 20)")
+    parser.add_argument("--warmup", type=int, default=None, help="untimed frames before timing (12; --modes: 10)")
     parser.add_argument("--solver", choices=METHODS, default="auto",
                         help="linear solver (cloth.physics.linsolve); auto: cholesky where MKL loads, else pcg")
     parser.add_argument("--out", type=Path, default=Path("results/benchmark"))
+    parser.add_argument("--modes", action="store_true", help="the three modes at matched mean faces, per phase")
+    parser.add_argument("--scene", default="sheet_on_sphere", help="--modes: the scene (conf/scene/)")
+    parser.add_argument("--camera", default="sheet_half", help="--modes: mode=viewdep's camera (conf/camera/)")
+    parser.add_argument("overrides", nargs="*", help="--modes: more config overrides (key=value)")
     args = parser.parse_args(argv)
     solver = SolverOptions(method=args.solver)  # a method that cannot run here stops before any work
+    if args.modes:
+        frames = 20 if args.frames is None else args.frames
+        warmup = 10 if args.warmup is None else args.warmup
+        for name, group in ((args.scene, "scene"), (args.camera, "camera")):
+            if not (CONF / group / f"{name}.yaml").exists():
+                parser.error(f"--{group} {name!r}: no conf/{group}/{name}.yaml")
+    else:
+        frames = 6 if args.frames is None else args.frames
+        warmup = 12 if args.warmup is None else args.warmup
     out_dir = args.out / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     out_dir.mkdir(parents=True, exist_ok=True)
+    if args.modes:
+        df = bench_modes(args.scene, args.camera, frames, warmup, [f"solver={args.solver}", *args.overrides])
+        write_text_atomic(out_dir / "modes.csv", df.to_csv(index=False))
+        phases = [f"{p}_us_per_face_step" for p in SIM_PHASES]
+        print(df[["mode", "faces_mean", "s_per_frame", *phases, "us_per_face_step"]].to_string(
+            index=False, float_format=lambda v: f"{v:.2f}"))
+        ratio = df["us_per_face_step"].iloc[1] / df["us_per_face_step"].iloc[0]
+        frame_ratio = df["s_per_frame"].iloc[1] / df["s_per_frame"].iloc[0]
+        summary = {"scene": args.scene, "resolution_factor": df.attrs["resolution_factor"],
+                   "adaptive_over_fixed_frame_time": frame_ratio, "adaptive_over_fixed_per_face": ratio,
+                   "rows": df.to_dict("records"), "manifest": environment_manifest(0)}
+        write_json_atomic(out_dir / "summary.json", summary)
+        print(f"adaptive / fixed at matched faces: {frame_ratio:.2f}x frame time ({ratio:.2f}x per face and step); "
+              f"results in {out_dir}")
+        return
     rows = []
     for r in args.resolutions:
-        row = bench(r, args.frames, args.warmup, solver)
+        row = bench(r, frames, warmup, solver)
         rows.append(row)
         print(f"faces {row['faces']:6d}: {row['s_per_step'] * 1e3:8.1f} ms/step "
               f"({row['us_per_face_per_step']:.2f} us/face/step; physics {row['physics_s_per_step'] * 1e3:.1f}, "

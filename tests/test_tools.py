@@ -4,6 +4,7 @@ are measurements for people, not tests, on machines that are shared and noisy.""
 
 import json
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -25,6 +26,33 @@ def test_benchmark_writes_time_per_step_by_phase(tmp_path):
     assert (steps.share_outside_kernels_and_solver <= 1).all()
     summary = json.loads((out / "summary.json").read_text())
     assert summary["growth_exponent"] == pytest.approx(summary["growth_exponent"])  # finite, not NaN
+    assert set(steps.solver) <= {"cholesky", "pcg"} and (steps.solves_capped == 0).all()
+
+
+# --modes matches the fixed mesh's faces to adaptive's mean through resolution_factor, which the
+# preset's integer resolution rounds: within one cell per side of a 24-cell sheet (2 x 24^2 faces),
+# a face count within about 2 x (1/24) + rounding of the target; 25 % covers the small counts here.
+MATCHED_FACES = 0.25
+
+
+def test_benchmark_modes_times_the_three_modes_per_face_and_phase(tmp_path):
+    from experiments.benchmark import main
+    main(["--modes", "--frames", "2", "--warmup", "3", "--out", str(tmp_path)])
+    out = _only_child(tmp_path)
+    modes = pd.read_csv(out / "modes.csv")
+    assert list(modes["mode"]) == ["nonadaptive", "adaptive", "viewdep"]
+    fixed, adaptive = modes.iloc[0], modes.iloc[1]
+    assert abs(fixed.faces_mean - adaptive.faces_mean) <= MATCHED_FACES * adaptive.faces_mean
+    phases = [c for c in modes.columns if c.endswith("_us_per_face_step") and c != "us_per_face_step"]
+    assert {"sizing_us_per_face_step", "remesh_us_per_face_step", "solve_us_per_face_step"} <= set(phases)
+    # the phases add up to the whole (sim_s is their sum); the fixed mesh neither sizes nor remeshes
+    assert np.allclose(modes[phases].sum(axis=1), modes["us_per_face_step"], rtol=1e-9)
+    assert fixed.sizing_us_per_face_step == 0 and fixed.remesh_us_per_face_step == 0
+    assert adaptive.remesh_us_per_face_step > 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["adaptive_over_fixed_frame_time"] == pytest.approx(adaptive.s_per_frame / fixed.s_per_frame)
+    with pytest.raises(SystemExit):
+        main(["--modes", "--scene", "no_such_scene", "--out", str(tmp_path / "bad")])
 
 
 def test_compare_modes_tabulates_the_three_modes(tmp_path):
