@@ -6,6 +6,7 @@ Hydra composes the config; this module turns it into solver objects and raises
 
 from __future__ import annotations
 
+import importlib.util
 import inspect
 
 import numpy as np
@@ -194,9 +195,28 @@ def build_remesher(mode_cfg: DictConfig, sizing_overrides: dict, camera=None, fr
     return ViewDependentRemesher(**common, camera=camera, view=view, frame_time=frame_time)
 
 
+# Where a crowd's characters run (crowd_backend): Ray tasks (a local Ray instance, or the cluster
+# at RAY_ADDRESS) or local processes (joblib's loky); experiments.crowd runs them.
+CROWD_BACKENDS = ("ray", "processes")
+# A run config without the key was written before there was a choice: its crowd ran in processes.
+LEGACY_CROWD_BACKEND = "processes"
+
+
+def crowd_backend(cfg: DictConfig) -> str:
+    """The config's crowd_backend, checked: one of CROWD_BACKENDS, and Ray importable for 'ray'."""
+    backend = cfg.get("crowd_backend", LEGACY_CROWD_BACKEND)
+    _require(backend in CROWD_BACKENDS, "crowd_backend",
+             f"must be one of {', '.join(CROWD_BACKENDS)} (where a crowd's characters run), got {backend!r}")
+    if backend == "ray":
+        _require(importlib.util.find_spec("ray") is not None, "crowd_backend",
+                 "ray is not installed (pip install ray); or run the characters in local processes: "
+                 "crowd_backend=processes")
+    return backend
+
+
 def crowd_size(cfg: DictConfig) -> int | None:
     """Number of characters of a crowd scene (each its own Simulation), None for other scenes;
-    checks every crowd key (scene.params.dancers and columns, crowd_jobs)."""
+    checks every crowd key (scene.params.dancers and columns, crowd_jobs, crowd_backend)."""
     if cfg.scene.name not in CROWDS:
         return None
     params = cfg.scene.params
@@ -209,6 +229,7 @@ def crowd_size(cfg: DictConfig) -> int | None:
              f"must be an integer >= 1, or null (auto: cloth.scenes.registry.crowd_columns), got {columns!r}")
     jobs = cfg.get("crowd_jobs", 1)
     _require(_int_at_least(jobs, 1), "crowd_jobs", f"must be an integer >= 1, got {jobs!r}")
+    crowd_backend(cfg)
     return dancers
 
 

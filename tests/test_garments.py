@@ -209,6 +209,7 @@ def test_scene_configs_bring_their_camera_and_length():
     ("scene.params.dancers=0", "scene.params.dancers"),
     ("scene.params.columns=0", "scene.params.columns"),
     ("crowd_jobs=0", "crowd_jobs"),
+    ("crowd_backend=threads", "crowd_backend"),
     ("+scene.params.phase=0.3", "phase"),
 ])
 def test_crowd_config_errors_name_the_key(override, key):
@@ -284,7 +285,7 @@ def test_crowd_records_are_sums_and_characters_match_running_alone(tmp_path, mon
     crowd_dir = tmp_path / "crowd"
     # the characters one after the other in this process, as the run alone below: MKL PARDISO's last
     # bits depend on its thread count, and a worker process gets cores // jobs threads (joblib's loky;
-    # this process all of them
+    # one on Ray), this process all of them (the backends: tests/test_crowd.py)
     summary = run_config(crowd_dir, "scene=multiple_dancers", f"scene.params.dancers={count}", "crowd_jobs=1",
                          *common)
     assert summary["status"] == "completed" and summary["characters"] == count
