@@ -249,3 +249,98 @@ def test_a_character_that_fails_on_ray_is_named_and_the_others_finish(tmp_path, 
     assert summary["status"] == "missing"
     assert summary["message"].startswith("character 1: FileExistsError")
     assert summary["workers"][1] is None and summary["workers"][0]["numba_threads"] == 1
+
+
+# ---- the crowd_scaling study ---------------------------------------------------------------------
+
+def test_the_crowd_scaling_study_is_a_preset_the_main_job_runs_only_on_request(tmp_path):
+    from experiments import paper
+
+    cfg = compose_config("+experiment=crowd_scaling", return_hydra_config=True)
+    assert cfg.study == "crowd_scaling" and cfg.frames == 50 and cfg.scene.name == "multiple_dancers"
+    params = cfg.hydra.sweeper.params
+    assert params["scene.params.dancers"] == "1,10,100" and params["+point"] == "adaptive,viewdep"
+    assert "crowd_scaling" in paper.STUDIES and "crowd_scaling" not in paper.DEFAULT_STUDIES
+    args = paper.parse_args(["--studies", "crowd_scaling"])
+    assert args.studies == ["crowd_scaling"]
+    [(folder, extra)] = paper.study_parts("crowd_scaling", args, tmp_path)
+    cmd = paper.study_command("crowd_scaling", tmp_path, args.scale, args.jobs, args.frames, extra, folder)
+    assert "+experiment=crowd_scaling" in cmd and f"hydra.sweep.dir={tmp_path / 'crowd_scaling'}" in cmd
+
+
+# Made-up crowd runs: adaptive's time per frame 0.5 n (1 + seed) s for n dancers (frames of 0.25
+# and 1.75 times that), the view-dependent mode's SPEEDUPS[scale][n][seed] times less; faces 100 n
+# and 25 n. Every number is a binary fraction: the table's values are exact but for rounding.
+SPEEDUPS = {"small": {1: (2.0, 2.5), 10: (4.0, 5.0), 100: (8.0, 10.0)},  # grows: median 2.25, 4.5, 9
+            "paper": {1: (3.0,), 10: (4.0,), 100: (2.0,)}}  # up, then down
+TABLE_TOL = 1e-12  # means and ratios of binary fractions: float rounding only
+
+
+def _scaling_runs(root):
+    from helpers import write_run
+
+    k = 0
+
+    def run(n, mode, seed, scale, time, faces, **kw):
+        nonlocal k
+        k += 1
+        return write_run(root / f"{k}_{scale}_{n}_{mode}_{seed}", "multiple_dancers", mode, [faces] * 2, [faces] * 2,
+                         [0.25 * time, 1.75 * time] if mode == "adaptive" else [time, time], scale=scale, seed=seed,
+                         variant=kw.pop("variant", mode), summary_extra={"characters": n},
+                         study=kw.pop("study", "crowd_scaling"), **kw)
+
+    for scale, sizes in SPEEDUPS.items():
+        for n, speedups in sizes.items():
+            for seed, s in enumerate(speedups):
+                base = 0.5 * n * (1 + seed)
+                run(n, "adaptive", seed, scale, base, 100 * n, timestamp="2025-01-02T00:00:00+00:00")
+                run(n, "viewdep", seed, scale, base / s, 25 * n, timestamp="2025-01-02T00:00:00+00:00")
+    # left out: an earlier run of the same cell (superseded), another study's crowd, another variant
+    run(10, "viewdep", 0, "small", 99.0, 1, timestamp="2025-01-01T00:00:00+00:00")
+    run(10, "viewdep", 0, "small", 99.0, 1, study="table1")
+    run(10, "viewdep", 0, "small", 99.0, 1, variant="viewdep_nofloor", timestamp="2025-01-03T00:00:00+00:00")
+    # refused: the two modes of 1000 dancers ran other code
+    run(1000, "adaptive", 0, "small", 500.0, 1, manifest={"git_commit": "a" * 40})
+    run(1000, "viewdep", 0, "small", 50.0, 1, manifest={"git_commit": "b" * 40})
+
+
+def test_the_crowd_scaling_table_gives_the_speed_up_at_each_crowd_size(tmp_path):
+    from experiments.aggregate import load_runs, table1, table1_runs
+    from paper_figures import crowd_scaling
+
+    root = tmp_path / "runs"
+    _scaling_runs(root)
+    runs = load_runs([root], warn=False).runs
+    t = crowd_scaling.crowd_scaling_table(runs)
+    assert [(r.scale, r.dancers) for r in t.itertuples()] == [("paper", 1), ("paper", 10), ("paper", 100),
+                                                              ("small", 1), ("small", 10), ("small", 100)]
+    for r in t.itertuples():
+        s = np.array(SPEEDUPS[r.scale][r.dancers])
+        base = 0.5 * r.dancers * (1 + np.arange(len(s)))
+        assert r.frames == 2 and r.repeats == len(s)
+        assert r.adaptive_s == pytest.approx(np.median(base), rel=TABLE_TOL)
+        assert r.viewdep_s == pytest.approx(np.median(base / s), rel=TABLE_TOL)
+        assert r.adaptive_per_character_s == pytest.approx(np.median(base) / r.dancers, rel=TABLE_TOL)
+        assert (r.adaptive_faces, r.viewdep_faces) == (100 * r.dancers, 25 * r.dancers)
+        assert r.speedup == pytest.approx(np.median(s), rel=TABLE_TOL)
+        assert (r.speedup_lo, r.speedup_hi) == pytest.approx((s.min(), s.max()), rel=TABLE_TOL)
+        # never the superseded, other-study or other-variant runs (made 19th to 21st)
+        assert not {"19_small_10_viewdep_0", "20_small_10_viewdep_0", "21_small_10_viewdep_0"} & set(r.runs.split(", "))
+        assert len(r.runs.split(", ")) == 2 * r.repeats
+    small, paper = t[t["scale"] == "small"], t[t["scale"] == "paper"]
+    assert small["speedup_grows"].tolist() == [None, True, True]
+    assert paper["speedup_grows"].tolist() == [None, True, False]
+    assert t.attrs["verdict"] == {"paper": False, "small": True}
+    assert len(t.attrs["problems"]) == 1 and "1000 dancers" in t.attrs["problems"][0] \
+        and "commit" in t.attrs["problems"][0]
+    assert any("superseded" in n for n in t.attrs["notes"])
+    # the files, through the figure scripts' command line
+    out = tmp_path / "figures"
+    assert crowd_scaling.main([str(root), "--out", str(out)]) == 0
+    csv = pd.read_csv(out / "crowd_scaling.csv")
+    assert np.allclose(csv["speedup"], t["speedup"], rtol=TABLE_TOL, atol=0)
+    md = (out / "crowd_scaling.md").read_text()
+    assert "At scale=small the speed-up grows with the crowd (1: 2.25× → 10: 4.50× → 100: 9.00×)" in md
+    assert "At scale=paper the speed-up does not grow with the crowd" in md
+    # crowds of other sizes never make Table 1's rows
+    assert table1(table1_runs(runs[runs["study"] == "crowd_scaling"])).empty
