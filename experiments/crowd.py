@@ -98,7 +98,8 @@ def _on_ray(task, args: list, jobs: int, workers: dict, errors: dict) -> None:
         if address:
             ray.init(address=address, logging_level="WARNING")
         else:
-            ray.init(num_cpus=jobs, include_dashboard=False, logging_level="WARNING")
+            # a new instance of its own ("local"), never a cluster that `ray start` left running here
+            ray.init(address="local", num_cpus=jobs, include_dashboard=False, logging_level="WARNING")
     remote = ray.remote(num_cpus=1, max_retries=0, runtime_env={"env_vars": dict(THREAD_ENV)})(one_thread)
     pending = {}
     try:

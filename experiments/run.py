@@ -161,7 +161,8 @@ def main(cfg: DictConfig) -> None:
         sys.exit(3)
     print(f"run folder: {out_dir}")
     if "characters" in summary:
-        print(f"  crowd of {summary['characters']} characters (one sub-folder each); status: {summary['status']}")
+        print(f"  crowd of {summary['characters']} characters (one sub-folder each, per character in "
+              f"characters.csv), run in {summary.get('crowd_ran_in', '?')}; status: {summary['status']}")
     print(f"  frames: {summary['frames_completed']}  faces: {summary.get('faces_mean', 0):.0f}  "
           f"mean time per frame: {summary.get('sim_s_mean', 0):.3f} s simulation, "
           f"{summary.get('wall_s_mean', 0):.3f} s with I/O")
