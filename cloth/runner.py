@@ -108,14 +108,46 @@ CROWD_SUM_COLUMNS = ("faces", "verts", "nodes", "sim_s", "wall_s", "solver_itera
                      "faces_sized", "faces_at_size_min", "faces_at_size_max", "faces_occluded")
 
 
-def combine_crowd(character_dirs: list, out_dir: Path) -> tuple[pd.DataFrame, dict]:
+CHARACTERS_FILE = "characters.csv"  # a crowd's per-character table, in its run folder
+CHARACTER_COLUMNS = ("character", "status", "frames", "sim_s_mean", "sim_total_s", "faces_mean", "wall_s_mean",
+                     "in_view_fraction")
+
+
+def _column_stat(frames: pd.DataFrame, col: str, stat: str) -> float:
+    """frames[col]'s mean or sum as a float; NaN when the column is absent or the frames empty."""
+    if col not in frames.columns or frames.empty:
+        return float("nan")
+    return float(getattr(frames[col].astype(float), stat)())
+
+
+def characters_table(frames: list, summaries: list) -> pd.DataFrame:
+    """One row per character of a crowd (CHARACTER_COLUMNS): its index, status, frames completed,
+    mean simulation time per frame sim_s_mean (s) and its total sim_total_s, mean faces, mean
+    wall time per frame, and in_view_fraction: the fraction of its frames with any face in the
+    camera's view (faces_in_view > 0; NaN without a camera). NaN where a character wrote no frame."""
+    rows = []
+    for i, (f, s) in enumerate(zip(frames, summaries)):
+        in_view = f["faces_in_view"].astype(float) if "faces_in_view" in f.columns else pd.Series(dtype=float)
+        in_view = in_view.dropna()
+        rows.append({"character": i, "status": s.get("status", "missing"), "frames": int(len(f)),
+                     "sim_s_mean": _column_stat(f, "sim_s", "mean"), "sim_total_s": _column_stat(f, "sim_s", "sum"),
+                     "faces_mean": _column_stat(f, "faces", "mean"), "wall_s_mean": _column_stat(f, "wall_s", "mean"),
+                     "in_view_fraction": float((in_view > 0).mean()) if len(in_view) else float("nan")})
+    return pd.DataFrame(rows, columns=list(CHARACTER_COLUMNS))
+
+
+def combine_crowd(character_dirs: list, out_dir: Path, errors: dict | None = None,
+                  extra: dict | None = None) -> tuple[pd.DataFrame, dict]:
     """The records of a crowd from its characters' run folders (never re-simulating).
 
     frames.parquet: per frame, the sum over the characters of CROWD_SUM_COLUMNS and of every
     time_*_s column, the largest max_speed_m_s and the smallest min_face_quality, over the frames
     that every character completed (and the median over the characters of edge_at_size_min_m).
-    summary.json: the Table 1 statistics of those sums, the
-    worst status of the characters, and each character's own summary.
+    characters.csv: one row per character (:func:`characters_table`).
+    summary.json: the Table 1 statistics of those sums, the worst status of the characters, the
+    characters' messages (`errors`: character index -> what happened to it, for a character
+    whose own summary has no message, e.g. a worker that died), the per-character table
+    (character_table), each character's own summary, and `extra` (how the characters ran).
     """
     out_dir = Path(out_dir)
     frames, summaries = [], []
@@ -125,6 +157,9 @@ def combine_crowd(character_dirs: list, out_dir: Path) -> tuple[pd.DataFrame, di
         frames.append(pd.read_parquet(f) if f.exists() else pd.DataFrame())
         s = d / "summary.json"
         summaries.append(json.loads(s.read_text()) if s.exists() else {"status": "missing"})
+    for i, message in (errors or {}).items():
+        if not summaries[i].get("message"):
+            summaries[i] = {**summaries[i], "message": message}
     n = min(len(f) for f in frames)
     rows = pd.DataFrame({"frame": frames[0]["frame"].iloc[:n].to_numpy()} if n else {})
     if n:
@@ -141,6 +176,8 @@ def combine_crowd(character_dirs: list, out_dir: Path) -> tuple[pd.DataFrame, di
                 rows["edge_at_size_min_m"] = np.nanmedian(edges, axis=0)
         rows["characters"] = len(frames)
         write_parquet_atomic(out_dir / "frames.parquet", rows)
+    table = characters_table(frames, summaries)
+    write_text_atomic(out_dir / CHARACTERS_FILE, table.to_csv(index=False))
     order = ("completed", "interrupted", "diverged", "failed", "missing")
     status = max((s.get("status", "missing") for s in summaries), key=lambda x: order.index(x) if x in order else 9)
     summary = {"status": status, "characters": len(frames), **summarize(rows),
@@ -148,6 +185,10 @@ def combine_crowd(character_dirs: list, out_dir: Path) -> tuple[pd.DataFrame, di
                                     if s.get("message")),
                # the scene's notes (the same for every character) and each character's own, once each
                "notes": list(dict.fromkeys(n for s in summaries for n in s.get("notes", []))),
+               **(extra or {}),
+               # NaN (no camera, no frame) as null: summary.json stays strict JSON
+               "character_table": [{k: (None if isinstance(v, float) and np.isnan(v) else v) for k, v in r.items()}
+                                   for r in table.to_dict(orient="records")],
                "character_summaries": summaries}
     write_json_atomic(out_dir / "summary.json", summary)
     return rows, summary

@@ -53,7 +53,7 @@ from cloth.eval.screenspace import frame_errors, offscreen_distance, popping, re
 from cloth.io.manifest import write_json_atomic, write_parquet_atomic
 from cloth.io.states import load_state, merge_states
 from cloth.view.camera import ViewError
-from cloth.view.paths import path_from_config
+from experiments.build import ConfigError, camera_path
 
 # With an ensemble of reference members: the bootstrap interval of error_px over the members, the
 # chaos floor (median error between pairs of members; NaN with one member), error / floor, members.
@@ -252,8 +252,8 @@ def evaluate_runs(run_dirs, ref_dir, resolution_scale: float = 1.0) -> list[pd.D
     ref_states = [state_files(r) for r in refs]
     run_states = [state_files(d) for d in run_dirs]
     try:
-        paths = [path_from_config(_config(d)["camera"]) for d in run_dirs]
-    except (ViewError, KeyError, TypeError, ValueError) as exc:
+        paths = [camera_path(_config(d)) for d in run_dirs]  # a crowd's: fitted to its stage
+    except (ViewError, ConfigError, KeyError, TypeError, ValueError) as exc:
         raise AccuracyError(f"camera config cannot be built: {exc}") from None
     rows = [[] for _ in run_dirs]
     recent = [[] for _ in run_dirs]  # each run's last two (frame, shot, image): popping needs three
@@ -385,7 +385,7 @@ def summarize(table: pd.DataFrame, ref_dir, resolution, resolution_scale: float,
 
 def image_resolution(run_dir, resolution_scale: float) -> tuple[int, int]:
     """[width, height] of the images rendered for a run (its camera's image times the scale)."""
-    cam = path_from_config(_config(Path(run_dir))["camera"]).camera_at(0.0)
+    cam = camera_path(_config(Path(run_dir))).camera_at(0.0)
     h = max(int(round(cam.height * resolution_scale)), 1)
     return max(int(round(cam.width * resolution_scale)), 1), h
 

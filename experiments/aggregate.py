@@ -452,14 +452,19 @@ def is_default_variant(row) -> bool:
     return row["variant"] in ("", row["mode"])
 
 
+# Studies whose runs are never Table 1's, even among runs without a table1 study: crowd_scaling's
+# crowds of 1 to 100 dancers would make one row of several crowd sizes.
+NOT_TABLE1_STUDIES = ("crowd_scaling",)
+
+
 def table1_runs(runs: pd.DataFrame) -> pd.DataFrame:
-    """The runs Table 1 is made of: the table1 study's when there are any, else all; never the
-    fine reference runs."""
+    """The runs Table 1 is made of: the table1 study's when there are any, else all but those of
+    NOT_TABLE1_STUDIES; never the fine reference runs."""
     if runs.empty:
         return runs
     runs = runs[~runs["reference"].astype(bool)]
     study = runs[runs["study"] == "table1"]
-    return study if len(study) else runs
+    return study if len(study) else runs[~runs["study"].isin(NOT_TABLE1_STUDIES)]
 
 
 def baseline_for(runs: pd.DataFrame, scene: str, scale: str, seed=None) -> pd.Series | None:
@@ -492,7 +497,7 @@ ROW_KEY = ("scene", "scale", "mode", "variant")
 MUST_AGREE = {"code": "commit", "frames": "frames", "scale": "scale"}
 
 
-def _disagreement(runs: pd.DataFrame) -> str:
+def disagreement(runs: pd.DataFrame) -> str:
     """'' when the runs agree on MUST_AGREE, else what differs and the values."""
     parts = []
     for col, what in MUST_AGREE.items():
@@ -531,7 +536,7 @@ def table1(runs: pd.DataFrame) -> pd.DataFrame:
     problems: list[str] = []
     groups = {}
     for key, g in chosen.groupby(list(ROW_KEY), sort=False, dropna=False):
-        bad = _disagreement(g)
+        bad = disagreement(g)
         if bad:
             problems.append(f"Table 1 row {_label(key)} refused: its runs differ in {bad} "
                             f"({', '.join(sorted(g['run']))})")
@@ -548,9 +553,9 @@ def table1(runs: pd.DataFrame) -> pd.DataFrame:
         if base is None:
             notes.append(f"{_label(key)}: no adaptive run of {scene} ({scale or 'no scale'}) in the table: "
                          "speed-up left out")
-        elif _disagreement(pd.concat([g, base])):
+        elif disagreement(pd.concat([g, base])):
             problems.append(f"Table 1 row {_label(key)}: speed-up refused: its adaptive baseline differs in "
-                            f"{_disagreement(pd.concat([g, base]))}")
+                            f"{disagreement(pd.concat([g, base]))}")
         else:
             b = base.set_index("seed")["time_mean_s"]
             speed = {s: b[s] / t for s, t in zip(g["seed"], g["time_mean_s"]) if s in b.index}

@@ -6,6 +6,10 @@ Hydra composes the config; this module turns it into solver objects and raises
 
 from __future__ import annotations
 
+import importlib.util
+import inspect
+
+import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from cloth.core.material import Material, MaterialError
@@ -17,10 +21,10 @@ from cloth.remeshing.adaptive import AdaptiveRemesher
 from cloth.remeshing.popfilter import PopFilterParams
 from cloth.remeshing.remesh import RemeshParams
 from cloth.remeshing.sizing import SizingParams
-from cloth.scenes.registry import CROWDS, SCENES, build_scene
+from cloth.scenes.registry import CROWDS, SCENES, build_scene, crowd_columns, crowd_placement, multiple_dancers
 from cloth.simulation import Simulation
 from cloth.view.camera import ViewError
-from cloth.view.paths import path_from_config
+from cloth.view.paths import fit_shots, path_from_config
 from cloth.view.viewdep import ViewDependentRemesher, ViewParams
 
 IMPLEMENTED_MODES = ("nonadaptive", "adaptive", "viewdep")
@@ -58,14 +62,99 @@ def _params(cls, values: dict, key: str):
         raise ConfigError(f"{key}.{exc}") from None
 
 
-def build_camera(cfg: DictConfig):
-    """The camera path of `cfg.camera` (None for camera=none); ConfigError names a bad camera.* key."""
+def _plain(node):
+    """A config node as plain Python (dicts, lists), resolved; a plain value as it is."""
+    return OmegaConf.to_container(node, resolve=True) if isinstance(node, DictConfig) else node
+
+
+def _crowd_default(key: str):
+    """multiple_dancers' own default of a parameter (for configs that do not set it)."""
+    return inspect.signature(multiple_dancers).parameters[key].default
+
+
+def _int_at_least(v, low: int) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and v >= low
+
+
+def stage_camera_config(cam: dict, scene: dict) -> dict:
+    """The camera config `cam` (plain dict) fitted to the stage of the crowd `scene` (its plain
+    config: name, params), without its `stage_scale` block; as written when it has none or the
+    scene is not a crowd.
+
+    `stage_scale: {stage: {dancers, columns, spacing}, front_row_dancer: k}` says which stage the
+    shots are written for (conf/camera/crowd_shots.yaml). The scene's stage (its dancers, columns,
+    spacing: cloth.scenes.registry.crowd_placement) against that one gives
+    (cloth.view.paths.fit_shots):
+
+    * scale = max(1, R / R_written), R a stage's radius: the largest horizontal distance of a
+      dancer from the stage's centre (the origin). `fit: stage` cameras go that many times as far
+      from their look-at point, as does the far plane; a smaller stage keeps the written shot;
+    * shift = where dancer k of the front row (row 0; the row's last when it is shorter) stands
+      on the scene's stage - where it stands on the written stage. `fit: dancer` cameras move by it.
+
+    On the written stage scale is 1 and shift 0: the camera is exactly as written. ConfigError
+    names a bad camera.stage_scale key."""
+    fit = cam.get("stage_scale")
+    cam = {k: v for k, v in cam.items() if k != "stage_scale"}
+    if fit is None or scene.get("name") not in CROWDS:
+        return cam
+    key = "camera.stage_scale"
+    _require(isinstance(fit, dict), key, f"must be a mapping {{stage, front_row_dancer}}, got {fit!r}")
+    unknown = set(fit) - {"stage", "front_row_dancer"}
+    _require(not unknown, key, f"unknown key(s) {sorted(unknown)}; known: front_row_dancer, stage")
+    stage = fit.get("stage")
+    _require(isinstance(stage, dict) and set(stage) <= {"dancers", "columns", "spacing"}, f"{key}.stage",
+             f"must be a mapping of dancers, columns, spacing (the stage the shots are written for), got {stage!r}")
+    for name, ok, what in (("dancers", _int_at_least(stage.get("dancers"), 2), "an integer >= 2"),
+                           ("columns", stage.get("columns") is None or _int_at_least(stage.get("columns"), 1),
+                            "an integer >= 1 or null (auto)"),
+                           ("spacing", isinstance(stage.get("spacing"), (int, float))
+                            and not isinstance(stage.get("spacing"), bool) and stage.get("spacing") > 0,
+                            "a number > 0 (m)")):
+        _require(ok, f"{key}.stage.{name}", f"must be {what}, got {stage.get(name)!r}")
+    front = fit.get("front_row_dancer", 0)
+    _require(_int_at_least(front, 0), f"{key}.front_row_dancer", f"must be an integer >= 0, got {front!r}")
+    params = scene.get("params") or {}
+    written = (stage["dancers"], stage["spacing"], stage.get("columns"))
+    actual = tuple(params.get(k, _crowd_default(k)) for k in ("dancers", "spacing", "columns"))
+    (ref, _, _), (pos, _, _) = (crowd_placement(n, sp, c, 0.0, 0.0) for n, sp, c in (written, actual))
+    ref_radius = float(np.max(np.linalg.norm(ref[:, :2], axis=1)))
+    radius = float(np.max(np.linalg.norm(pos[:, :2], axis=1)))
+    scale = max(1.0, radius / ref_radius)
+
+    def front_row(dancers, columns):  # the dancer of the dancer shots: k of the front row, or its last
+        return min(front, min(int(dancers), crowd_columns(dancers, columns)) - 1)
+
+    shift = pos[front_row(actual[0], actual[2])] - ref[front_row(written[0], written[2])]
+    return fit_shots(cam, scale, shift)
+
+
+def camera_config(cfg) -> dict | None:
+    """The camera config of a run's config (a DictConfig, or a run folder's config.yaml as a
+    dict) as plain dicts, fitted to its crowd's stage (:func:`stage_camera_config`); None for
+    camera=none. Every tool that needs a run's camera path builds it from this."""
     cam = cfg.get("camera")
     if cam is None or cam.get("type") in (None, "none"):
         return None
+    scene = cfg.get("scene") or {}
+    return stage_camera_config(dict(_plain(cam)), {"name": scene.get("name"), "params": _plain(scene.get("params"))})
+
+
+def camera_path(cfg):
+    """The camera path of a run's config (:func:`camera_config`), None for camera=none; ViewError,
+    KeyError ... for a bad camera, ConfigError for a bad camera.stage_scale."""
+    cam = camera_config(cfg)
+    return None if cam is None else path_from_config(cam)
+
+
+def build_camera(cfg: DictConfig):
+    """The camera path of `cfg.camera` (None for camera=none), fitted to a crowd's stage
+    (:func:`stage_camera_config`); ConfigError names a bad camera.* key."""
     try:
-        return path_from_config(OmegaConf.to_container(cam, resolve=True))
+        return camera_path(cfg)
     except (ViewError, KeyError, TypeError, ValueError) as exc:
+        if isinstance(exc, ConfigError):
+            raise
         raise ConfigError(f"camera: {exc}") from None
 
 
@@ -106,15 +195,42 @@ def build_remesher(mode_cfg: DictConfig, sizing_overrides: dict, camera=None, fr
     return ViewDependentRemesher(**common, camera=camera, view=view, frame_time=frame_time)
 
 
+# Where a crowd's characters run (crowd_backend): Ray tasks (a local Ray instance, or the cluster
+# at RAY_ADDRESS) or local processes (joblib's loky); experiments.crowd runs them.
+CROWD_BACKENDS = ("ray", "processes")
+# A run config without the key was written before there was a choice: its crowd ran in processes.
+LEGACY_CROWD_BACKEND = "processes"
+
+
+def crowd_backend(cfg: DictConfig) -> str:
+    """The config's crowd_backend, checked: one of CROWD_BACKENDS, and Ray importable for 'ray'."""
+    backend = cfg.get("crowd_backend", LEGACY_CROWD_BACKEND)
+    _require(backend in CROWD_BACKENDS, "crowd_backend",
+             f"must be one of {', '.join(CROWD_BACKENDS)} (where a crowd's characters run), got {backend!r}")
+    if backend == "ray":
+        _require(importlib.util.find_spec("ray") is not None, "crowd_backend",
+                 "ray is not installed (pip install ray); or run the characters in local processes: "
+                 "crowd_backend=processes")
+    return backend
+
+
 def crowd_size(cfg: DictConfig) -> int | None:
-    """Number of characters of a crowd scene (each its own Simulation), None for other scenes."""
+    """Number of characters of a crowd scene (each its own Simulation), None for other scenes;
+    checks every crowd key (scene.params.dancers and columns, crowd_jobs, crowd_backend)."""
     if cfg.scene.name not in CROWDS:
         return None
-    count = cfg.scene.params.get("count", 10)
-    _require(isinstance(count, int) and count >= 1, "scene.params.count", f"must be an integer >= 1, got {count!r}")
+    params = cfg.scene.params
+    _require("count" not in params, "scene.params.count",
+             "was renamed scene.params.dancers (the number of dancers); set that instead")
+    dancers = params.get("dancers", _crowd_default("dancers"))
+    _require(_int_at_least(dancers, 1), "scene.params.dancers", f"must be an integer >= 1, got {dancers!r}")
+    columns = params.get("columns")
+    _require(columns is None or _int_at_least(columns, 1), "scene.params.columns",
+             f"must be an integer >= 1, or null (auto: cloth.scenes.registry.crowd_columns), got {columns!r}")
     jobs = cfg.get("crowd_jobs", 1)
-    _require(isinstance(jobs, int) and jobs >= 1, "crowd_jobs", f"must be an integer >= 1, got {jobs!r}")
-    return count
+    _require(_int_at_least(jobs, 1), "crowd_jobs", f"must be an integer >= 1, got {jobs!r}")
+    crowd_backend(cfg)
+    return dancers
 
 
 def build_simulation(cfg: DictConfig, character: int | None = None):

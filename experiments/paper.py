@@ -10,6 +10,8 @@ reference ensemble of five seeds), ``table1`` (its non-adaptive row is the fixed
 study found of adaptive's quality: the coarsest whose re-synchronised error is not told apart as
 worse than adaptive's; the preset's own fixed mesh when the accuracy study is not run or finds
 none), ``ablation_buckling`` (the drape test) and ``ablation_buckling_dancer`` (the standing dancer).
+Others on request (``--studies``), among them ``crowd_scaling`` (beyond the paper: adaptive and
+view-dependent crowds of 1, 10 and 100 dancers; hours at scale=small, see the README).
 
 Runs each study as a Hydra multirun (``python -m experiments.run -m +experiment=<study>``, joblib
 launcher, ``--jobs`` runs at a time: one by default, so that timed runs never compete) into
@@ -41,7 +43,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 # in the order they run (the accuracy study first: Table 1's non-adaptive row depends on it)
 STUDIES = ("accuracy", "table1", "ablation_buckling", "ablation_buckling_dancer", "ablation_anticipation",
-           "sweep_nu_out", "sweep_k", "sweep_T", "sweep_margin", "sweep_resolution")
+           "sweep_nu_out", "sweep_k", "sweep_T", "sweep_margin", "sweep_resolution", "crowd_scaling")
 DEFAULT_STUDIES = ("accuracy", "table1", "ablation_buckling", "ablation_buckling_dancer")
 WARMUP = [sys.executable, "-m", "experiments.run", "scene=karate", "+point=viewdep", "scale=small", "frames=2",
           "output.rerun=false", "output.progress=false"]
@@ -174,6 +176,8 @@ def main(argv=None) -> int:
     print(f"  Table 1:     {figures / 'table1.md'} (.csv, .tex)")
     print(f"  Fig. 8:      {figures}/fig8_*.png")
     print(f"  Pareto:      {figures / 'pareto.png'} ({figures / 'pareto.md'})")
+    if "crowd_scaling" in args.studies:
+        print(f"  Crowds:      {figures / 'crowd_scaling.md'} (.csv)")
     if failed:
         print(f"  FAILED: {', '.join(failed)} (the records above say which runs)", file=sys.stderr)
         return 1

@@ -231,8 +231,8 @@ def replay(run_dir, out=None, frames: int | None = None, rtol: float = REPLAY_RT
                        ("checkpoint_every", 0), ("progress", False)):
         cfg.output[key] = value
     try:
-        count = crowd_size(cfg)
-        build_simulation(cfg, character=0 if count is not None else None)
+        dancers = crowd_size(cfg)
+        build_simulation(cfg, character=0 if dancers is not None else None)
     except ConfigError as exc:
         raise ReplayError(f"{run_dir}/config.yaml is rejected by the current code: {exc}") from None
     stopped = None
@@ -243,16 +243,16 @@ def replay(run_dir, out=None, frames: int | None = None, rtol: float = REPLAY_RT
     report = {"run_dir": str(run_dir), "replay_dir": str(out), "frames_replayed": n,
               "frames_original": int(len(original)), "tolerance_rtol": rtol, "replay_stopped": stopped}
     units = [("", run_dir, out)]
-    if count is not None:
-        units += [(f"dancer_{i:02d}", run_dir / f"dancer_{i:02d}", out / f"dancer_{i:02d}") for i in range(count)]
+    if dancers is not None:
+        units += [(f"dancer_{i:02d}", run_dir / f"dancer_{i:02d}", out / f"dancer_{i:02d}") for i in range(dancers)]
     checks = []
     for label, a_dir, b_dir in units:
         a = pd.read_parquet(a_dir / "frames.parquet") if (a_dir / "frames.parquet").is_file() else pd.DataFrame()
         b = pd.read_parquet(b_dir / "frames.parquet") if (b_dir / "frames.parquet").is_file() else pd.DataFrame()
         # a crowd's characters may have stopped at different frames (the combined table has the shortest)
-        unit = label or ("crowd" if count is not None else "run")
+        unit = label or ("crowd" if dancers is not None else "run")
         item = {"unit": unit, "frames": compare_frames(a, b, min(n, len(a)) if label else n, rtol)}
-        if count is not None and not label:
+        if dancers is not None and not label:
             item["final_state"] = {"compared": False, "reason": "a crowd's final positions are its characters'"}
         elif n >= len(a):
             item["final_state"] = compare_final_states(a_dir, b_dir, rtol)

@@ -16,8 +16,9 @@ continues in the same folder to the run's ``frames``:
 4. manifest.json gets an entry in ``resumes`` (frame, and the environment that resumed).
 
 A crowd run (sub-folders ``dancer_NN``) resumes each character that did not complete from its
-own checkpoint (a character that had not started yet runs from the beginning), then recombines
-the crowd's records (cloth.runner.combine_crowd).
+own checkpoint (a character that had not started yet runs from the beginning), on the crowd's
+backend (`crowd_backend`, experiments.crowd), then recombines the crowd's records
+(cloth.runner.combine_crowd).
 
 Refused, with one message and exit code 2: a folder that is not a run folder, a run that
 already completed, a run that diverged (it is deterministic: it would diverge again), a run
@@ -35,14 +36,14 @@ import sys
 from pathlib import Path
 
 import pandas as pd
-from joblib import Parallel, delayed
 from omegaconf import DictConfig, OmegaConf
 
 from cloth.io.checkpoint import CHECKPOINT_DIR, CHECKPOINT_INFO, CheckpointError, checkpoint_path, load_checkpoint
 from cloth.io.manifest import code_version, environment_manifest, write_json_atomic, write_parquet_atomic
 from cloth.runner import combine_crowd, run
 from cloth.simulation import SimulationDiverged
-from experiments.build import ConfigError, crowd_size
+from experiments.build import ConfigError, crowd_backend, crowd_size
+from experiments.crowd import run_characters, where
 from experiments.run import checkpoint_every, make_recorder, run_character
 
 
@@ -138,9 +139,9 @@ def resume_character(config_yaml: str, character: int, out_dir: str, recording_i
         return json.loads((out / "summary.json").read_text())
 
 
-def resume_crowd(cfg: DictConfig, run_dir: Path, count: int) -> dict:
+def resume_crowd(cfg: DictConfig, run_dir: Path, dancers: int) -> dict:
 
-    dirs = [run_dir / f"dancer_{i:02d}" for i in range(count)]
+    dirs = [run_dir / f"dancer_{i:02d}" for i in range(dancers)]
     status = [_status(d) for d in dirs]
     todo = [i for i, s in enumerate(status) if s not in ("completed", "diverged")]
     if todo and not any(checkpoint_path(dirs[i]).is_file() for i in todo):
@@ -152,15 +153,20 @@ def resume_crowd(cfg: DictConfig, run_dir: Path, count: int) -> dict:
         first = min(i for i in todo if checkpoint_path(dirs[i]).is_file())
         recording_id = _record_resume(run_dir, _checkpoint_frame(dirs[first]), int(cfg.seed))
     args = [(config_yaml, i, str(dirs[i]), recording_id) for i in todo]
-    jobs = min(int(cfg.crowd_jobs), max(len(args), 1))
+    jobs = int(cfg.crowd_jobs)
+    backend = crowd_backend(cfg)
+    try:  # where the characters that completed before ran (the crowd's summary of then)
+        workers = dict(enumerate(json.loads((run_dir / "summary.json").read_text()).get("workers") or []))
+    except (OSError, ValueError):
+        workers = {}
+    resumed, errors = {}, {}
     try:
-        if jobs == 1:
-            for a in args:
-                resume_character(*a)
-        else:
-            Parallel(n_jobs=jobs, backend="loky")(delayed(resume_character)(*a) for a in args)
+        run_characters(resume_character, args, jobs, backend, resumed, errors)
     finally:
-        _, summary = combine_crowd(dirs, run_dir)
+        workers.update({todo[k]: w for k, w in resumed.items()})
+        _, summary = combine_crowd(dirs, run_dir, errors={todo[k]: e for k, e in errors.items()}, extra={
+            "crowd_backend": backend, "crowd_ran_in": where(backend, jobs, len(args)),
+            "workers": [workers.get(i) for i in range(dancers)]})
     return summary
 
 
@@ -182,11 +188,11 @@ def resume(run_dir, progress: bool | None = None) -> dict:
     _refuse_finished(run_dir, _status(run_dir))
     try:
         _options(cfg)
-        count = crowd_size(cfg)
+        dancers = crowd_size(cfg)
     except ConfigError as exc:
         raise ResumeError(f"{run_dir}/config.yaml: {exc}") from None
-    if count is not None:
-        return resume_crowd(cfg, run_dir, count)
+    if dancers is not None:
+        return resume_crowd(cfg, run_dir, dancers)
     try:
         ckpt = load_checkpoint(run_dir)
     except CheckpointError as exc:

@@ -8,8 +8,9 @@ every ``output.checkpoint_every`` frames the whole state goes to checkpoint/stat
 RUN_DIR`` re-runs a folder and checks that it reproduces).
 
 A crowd scene (``scene=multiple_dancers``) runs each character as its own simulation in its own
-sub-folder (``dancer_00`` ...), `crowd_jobs` at a time in parallel processes (joblib), all under
-the one camera; the run folder then holds the combined records (sums over the characters, see
+sub-folder (``dancer_00`` ...), `crowd_jobs` at a time on Ray or in local processes
+(`crowd_backend`, experiments.crowd), all under the one camera; the run folder then holds the
+combined records (sums over the characters) and characters.csv, one row per character (see
 cloth.runner.combine_crowd). Each character's results are those of running it alone.
 """
 
@@ -25,14 +26,14 @@ from pathlib import Path
 import hydra
 import numba
 from hydra.types import RunMode
-from joblib import Parallel, delayed
 from omegaconf import DictConfig, OmegaConf
 
 from cloth.io.manifest import environment_manifest, write_json_atomic, write_text_atomic
 from cloth.io.recorder import RerunRecorder
 from cloth.scenes.registry import CROWDS
 from cloth.simulation import SimulationDiverged
-from experiments.build import ConfigError, build_simulation, crowd_size
+from experiments.build import ConfigError, build_simulation, crowd_backend, crowd_size
+from experiments.crowd import run_characters, where
 
 # cloth.runner is imported where it is used: this module is the command line, and a mistyped
 # choice (`scene=nope`, checked by unknown_choice before Hydra composes) is answered before any
@@ -81,26 +82,26 @@ def run_character(config_yaml: str, character: int, out_dir: str, recording_id: 
         return json.loads((out / "summary.json").read_text())
 
 
-def run_crowd(cfg: DictConfig, out_dir: Path, count: int) -> dict:
-    """Every character of a crowd in parallel processes, then the combined records."""
+def run_crowd(cfg: DictConfig, out_dir: Path, dancers: int) -> dict:
+    """Every character of a crowd on its backend (experiments.crowd), then the combined records."""
     from cloth.runner import combine_crowd  # noqa: PLC0415 - import cost (module note)
 
     build_simulation(cfg, character=0)  # every config check, before any output
     checkpoint_every(cfg)
+    backend = crowd_backend(cfg)
     recording_id = str(uuid.uuid4())
     _write_inputs(cfg, out_dir, recording_id)
     config_yaml = OmegaConf.to_yaml(cfg, resolve=True)
-    dirs = [out_dir / f"dancer_{i:02d}" for i in range(count)]
-    jobs = min(int(cfg.crowd_jobs), count)
+    dirs = [out_dir / f"dancer_{i:02d}" for i in range(dancers)]
+    jobs = int(cfg.crowd_jobs)
     args = [(config_yaml, i, str(d), recording_id) for i, d in enumerate(dirs)]
+    workers, errors = {}, {}
     try:
-        if jobs == 1:
-            for a in args:
-                run_character(*a)
-        else:
-            Parallel(n_jobs=jobs, backend="loky")(delayed(run_character)(*a) for a in args)
+        run_characters(run_character, args, jobs, backend, workers, errors)
     finally:  # a failed character keeps what it wrote; the crowd's records say which one
-        _, summary = combine_crowd(dirs, out_dir)
+        _, summary = combine_crowd(dirs, out_dir, errors=errors, extra={
+            "crowd_backend": backend, "crowd_ran_in": where(backend, jobs, len(args)),
+            "workers": [workers.get(i) for i in range(dancers)]})
     return summary
 
 
@@ -123,9 +124,9 @@ def run_from_config(cfg: DictConfig, out_dir: Path) -> dict:
     """Validate, build, run and record; returns the summary (raises ConfigError first if bad)."""
     from cloth.runner import run  # noqa: PLC0415 - import cost (module note)
 
-    count = crowd_size(cfg)
-    if count is not None:
-        return run_crowd(cfg, out_dir, count)
+    dancers = crowd_size(cfg)
+    if dancers is not None:
+        return run_crowd(cfg, out_dir, dancers)
     sim, n_frames = build_simulation(cfg)  # every config check happens here, before any output
     every = checkpoint_every(cfg)
     recording_id = str(uuid.uuid4())
@@ -160,7 +161,8 @@ def main(cfg: DictConfig) -> None:
         sys.exit(3)
     print(f"run folder: {out_dir}")
     if "characters" in summary:
-        print(f"  crowd of {summary['characters']} characters (one sub-folder each); status: {summary['status']}")
+        print(f"  crowd of {summary['characters']} characters (one sub-folder each, per character in "
+              f"characters.csv), run in {summary.get('crowd_ran_in', '?')}; status: {summary['status']}")
     print(f"  frames: {summary['frames_completed']}  faces: {summary.get('faces_mean', 0):.0f}  "
           f"mean time per frame: {summary.get('sim_s_mean', 0):.3f} s simulation, "
           f"{summary.get('wall_s_mean', 0):.3f} s with I/O")

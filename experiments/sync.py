@@ -51,10 +51,9 @@ from cloth.eval.screenspace import render_state
 from cloth.io.manifest import write_json_atomic, write_parquet_atomic
 from cloth.io.states import StateError, load_state, require_restart
 from cloth.simulation import SimulationDiverged
-from cloth.view.paths import path_from_config
 from experiments.accuracy import BOOTSTRAP, AccuracyError, check_configs, state_files
 from experiments.accuracy import bootstrap_mean_interval as bootstrap_interval  # over windows here
-from experiments.build import ConfigError, build_simulation, crowd_size
+from experiments.build import ConfigError, build_simulation, camera_path, crowd_size
 
 EVERY, HORIZON, BEFORE_CUT = 10, 8, 5  # frames: the defaults
 RESOLUTION_SCALE = 0.5  # rendered image / camera image: samples every 2 camera pixels (distances stay in camera px)
@@ -90,7 +89,7 @@ def plan(run_dir: Path, ref_dir: Path, every: int, horizon: int, before_cut: int
     if crowd_size(cfg) is not None:
         raise AccuracyError(f"{run_dir}: a crowd run; the re-synchronised error restarts one character "
                             f"(run it on solo_dancer or karate)")
-    path = path_from_config(OmegaConf.to_container(cfg.camera, resolve=True))
+    path = camera_path(cfg)
     ref_cfg = OmegaConf.load(ref_dir / "config.yaml")
     frames = min(int(cfg.frames), int(ref_cfg.frames))
     sim, _ = build_simulation(cfg)  # every config check, before any work

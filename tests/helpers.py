@@ -6,7 +6,7 @@ are in tests/conftest.py). A test module imports what it needs from here (`from 
 - simulations: `build_sim` (from overrides), `simulation_in_mode` (a Python-built Scene in one
   of the three modes), `mode_overrides`, `MODES`;
 - runs: `run_config` (a run folder from overrides), `read_frames`, `run_module` (python -m in a
-  new process);
+  new process), `write_run` (a run folder made by hand: what aggregation reads);
 - checks: `after_every_step` (a check after each step of a simulation), `count_crossings`,
   `material_edge_lengths`;
 - small scenes: `COTTON`, `two_sheets`.
@@ -14,6 +14,7 @@ are in tests/conftest.py). A test module imports what it needs from here (`from 
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -21,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import yaml
 from hydra import compose, initialize_config_dir
 from omegaconf import DictConfig
 
@@ -137,6 +139,49 @@ def run_config(out: Path, *overrides: str) -> dict:
 def read_frames(run_dir: Path) -> pd.DataFrame:
     """The per-frame records of a run folder (frames.parquet)."""
     return pd.read_parquet(Path(run_dir) / "frames.parquet")
+
+
+# write_run's frames: their frame time (s), and the I/O added to each frame's simulation time to
+# give its wall_s (Table 1 must not count it).
+FRAME_TIME_S = 0.04
+IO_S = 0.5
+
+
+def write_run(folder: Path, scene: str, mode: str, faces, verts, sim_s, *, study="table1", variant=None,
+              scale="small", status="completed", frames_requested=None, timestamp="2025-01-01T00:00:00+00:00",
+              view=None, buckling=None, accuracy=None, accuracy_frames=None, extra_frames=None, camera_cuts=None,
+              sync=None,
+              summary_extra=None, scene_view=None, seed=0, manifest=None) -> Path:
+    """A run folder as experiments.run writes it (only what aggregation reads)."""
+    folder.mkdir(parents=True)
+    n = len(sim_s)
+    mode_cfg = {"name": mode}
+    if mode == "viewdep":
+        mode_cfg["view"] = {"nu_out": 0.01, "margin": 0.4, "anticipation_frames": 5, "anticipation": True,
+                            **(view or {})}
+        mode_cfg["buckling"] = {"k": 10, "mode": "adaptive"} if buckling is None else (buckling or None)
+    scene_cfg = {"name": scene, "params": {"frame_time": FRAME_TIME_S}, **({"view": scene_view} if scene_view else {})}
+    cfg = {"scene": scene_cfg, "mode": mode_cfg, "scale": scale,
+           "frames": frames_requested or n, "seed": seed, "study": study, "variant": variant, "reference": False}
+    if camera_cuts:
+        cfg["camera"] = {"type": "cuts", "shots": [{"start": 0.0}] + [{"start": c} for c in camera_cuts]}
+    (folder / "config.yaml").write_text(yaml.safe_dump(cfg))
+    frames = pd.DataFrame({"frame": np.arange(1, n + 1), "sim_time_s": np.arange(1, n + 1) * FRAME_TIME_S,
+                           "faces": faces, "verts": verts, "sim_s": sim_s,
+                           "wall_s": np.asarray(sim_s, float) + IO_S, **(extra_frames or {})})
+    frames.to_parquet(folder / "frames.parquet", index=False)
+    summary = {"status": status, "message": "", "frames_requested": frames_requested or n, "frames_completed": n,
+               **(summary_extra or {})}
+    (folder / "summary.json").write_text(json.dumps(summary))
+    (folder / "manifest.json").write_text(json.dumps({"timestamp_utc": timestamp, **(manifest or {})}))
+    if accuracy is not None:
+        (folder / "accuracy.json").write_text(json.dumps(accuracy))
+    if accuracy_frames is not None:
+        pd.DataFrame(accuracy_frames).to_parquet(folder / "accuracy.parquet", index=False)
+    if sync is not None:
+        (folder / "sync.json").write_text(json.dumps(sync))
+    return folder
+
 
 
 def module_env(**extra: str) -> dict:

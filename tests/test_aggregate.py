@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-import yaml
+from helpers import FRAME_TIME_S, write_run
 
 from experiments import aggregate, tables
 from experiments.aggregate import RunFolderWarning, load_runs, table1
@@ -42,45 +42,6 @@ PAPER = {
 COLS = ("faces_min", "faces_max", "faces_mean", "verts_min", "verts_max", "verts_mean", "time_min_s", "time_max_s",
         "time_mean_s", "speedup")
 CUTS_S = (0.2,)  # the anticipation runs' camera cut (s)
-FRAME_TIME_S = 0.04
-# I/O added to each fake frame's simulation time to give its wall_s: Table 1 must not count it.
-IO_S = 0.5
-
-
-def write_run(folder: Path, scene: str, mode: str, faces, verts, sim_s, *, study="table1", variant=None,
-              scale="small", status="completed", frames_requested=None, timestamp="2025-01-01T00:00:00+00:00",
-              view=None, buckling=None, accuracy=None, accuracy_frames=None, extra_frames=None, camera_cuts=None,
-              sync=None,
-              summary_extra=None, scene_view=None, seed=0, manifest=None) -> Path:
-    """A run folder as experiments.run writes it (only what aggregation reads)."""
-    folder.mkdir(parents=True)
-    n = len(sim_s)
-    mode_cfg = {"name": mode}
-    if mode == "viewdep":
-        mode_cfg["view"] = {"nu_out": 0.01, "margin": 0.4, "anticipation_frames": 5, "anticipation": True,
-                            **(view or {})}
-        mode_cfg["buckling"] = {"k": 10, "mode": "adaptive"} if buckling is None else (buckling or None)
-    scene_cfg = {"name": scene, "params": {"frame_time": FRAME_TIME_S}, **({"view": scene_view} if scene_view else {})}
-    cfg = {"scene": scene_cfg, "mode": mode_cfg, "scale": scale,
-           "frames": frames_requested or n, "seed": seed, "study": study, "variant": variant, "reference": False}
-    if camera_cuts:
-        cfg["camera"] = {"type": "cuts", "shots": [{"start": 0.0}] + [{"start": c} for c in camera_cuts]}
-    (folder / "config.yaml").write_text(yaml.safe_dump(cfg))
-    frames = pd.DataFrame({"frame": np.arange(1, n + 1), "sim_time_s": np.arange(1, n + 1) * FRAME_TIME_S,
-                           "faces": faces, "verts": verts, "sim_s": sim_s,
-                           "wall_s": np.asarray(sim_s, float) + IO_S, **(extra_frames or {})})
-    frames.to_parquet(folder / "frames.parquet", index=False)
-    summary = {"status": status, "message": "", "frames_requested": frames_requested or n, "frames_completed": n,
-               **(summary_extra or {})}
-    (folder / "summary.json").write_text(json.dumps(summary))
-    (folder / "manifest.json").write_text(json.dumps({"timestamp_utc": timestamp, **(manifest or {})}))
-    if accuracy is not None:
-        (folder / "accuracy.json").write_text(json.dumps(accuracy))
-    if accuracy_frames is not None:
-        pd.DataFrame(accuracy_frames).to_parquet(folder / "accuracy.parquet", index=False)
-    if sync is not None:
-        (folder / "sync.json").write_text(json.dumps(sync))
-    return folder
 
 
 def row(t: pd.DataFrame, **key) -> pd.Series:

@@ -7,8 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from helpers import QUIET, compose_config
-from test_aggregate import write_run
+from helpers import QUIET, compose_config, write_run
 
 from cloth.core.mesh import grid_mesh
 from cloth.eval.drape import count_folds, drape_coefficient, shadow_area

@@ -215,7 +215,7 @@ def test_failed_run_resumes_into_a_second_recording(tmp_path, monkeypatch):
 
 def test_crowd_resumes_each_character_from_its_own_checkpoint(tmp_path, monkeypatch):
     run = tmp_path / "crowd"
-    cfg = compose_config("scene=multiple_dancers", "mode=viewdep", "scene.params.count=2", "crowd_jobs=1", "frames=4",
+    cfg = compose_config("scene=multiple_dancers", "mode=viewdep", "scene.params.dancers=2", "crowd_jobs=1", "frames=4",
                          "output.checkpoint_every=2", *NO_OUTPUT)
     with monkeypatch.context() as m:
         _fail_at_call(m, 7)  # dancer_00 completes (4 calls); dancer_01 fails advancing frame 2 -> 3

@@ -10,6 +10,10 @@ paper eq 4), so a path is a pure function of time. Paths are built from plain di
     type: cuts       shots: [{start, <a path>}, ...]   an instant switch at each start time
 
 and, at the top level, `image: {width, height, near, far}` shared by every shot.
+
+A camera or keyframe may carry `fit: stage` or `fit: dancer` (ignored by `path_from_config`):
+:func:`fit_shots` moves those to a stage of another size (a crowd of another number of dancers,
+experiments.build.stage_camera_config says by how much).
 """
 
 from __future__ import annotations
@@ -165,3 +169,60 @@ def path_from_config(cfg: dict, image: dict | None = None) -> CameraPath:
         return CutPath(np.array([float(s.get("start", 0.0)) for s in shots]),
                        [path_from_config({k: v for k, v in s.items() if k != "start"}, image) for s in shots])
     raise ViewError(f"camera type must be one of static, orbit, keyframes, cuts; got {kind!r}")
+
+
+FITS = ("stage", "dancer")  # the values of a camera's or keyframe's `fit` tag
+
+
+def _fitted(cam: dict, scale: float, shift: np.ndarray) -> dict:
+    """One camera or keyframe moved by its `fit` tag (see :func:`fit_shots`); as it is when the
+    move is none (scale 1, shift 0), to the last bit."""
+    fit = cam.get("fit")
+    if fit is not None and fit not in FITS:
+        raise ViewError(f"camera: fit must be one of {', '.join(FITS)} (or absent), got {fit!r}")
+    out = dict(cam)
+    if fit == "stage" and scale != 1.0:  # p' = a + s (p - a): same direction, s times as far from its look-at a
+        target = _vec(cam, "look_at")
+        out["position"] = (target + scale * (_vec(cam, "position") - target)).tolist()
+    elif fit == "dancer" and np.any(shift != 0.0):  # moved with its dancer
+        out["position"] = (_vec(cam, "position") + shift).tolist()
+        out["look_at"] = (_vec(cam, "look_at") + shift).tolist()
+    return out
+
+
+def _fit_path(cfg: dict, scale: float, shift: np.ndarray) -> dict:
+    kind = cfg.get("type")
+    out = dict(cfg)
+    if kind == "static":
+        if "camera" in cfg:
+            out["camera"] = _fitted(cfg["camera"], scale, shift)
+        else:
+            out = _fitted(cfg, scale, shift)
+    elif kind == "keyframes":
+        out["keys"] = [_fitted(k, scale, shift) for k in cfg.get("keys") or []]
+    elif kind == "cuts":
+        out["shots"] = [_fit_path(s, scale, shift) for s in cfg.get("shots") or []]
+    elif cfg.get("fit") is not None:
+        raise ViewError(f"camera: a {kind} camera cannot be fitted to a stage (fit: {cfg.get('fit')})")
+    return out
+
+
+def fit_shots(cfg: dict, scale: float, shift) -> dict:
+    """A camera config (see the module docstring) fitted to a stage of another size: every camera
+    or keyframe tagged `fit: stage` (a wide shot of the whole stage) keeps its look-at point and
+    direction at `scale` times its distance from it, and the far plane goes `scale` times as far;
+    every one tagged `fit: dancer` (a shot of one dancer) moves by `shift` (3,) m, with its dancer.
+    Untagged ones, times, fields of view and the image size stay. With scale 1 and shift 0 the
+    config comes back as it was. Raises ViewError naming a bad tag or scale."""
+    scale = float(scale)
+    if not (np.isfinite(scale) and scale > 0):
+        raise ViewError(f"camera: a stage's scale must be a number > 0, got {scale}")
+    shift = np.asarray(shift, dtype=float)
+    if shift.shape != (3,) or not np.all(np.isfinite(shift)):
+        raise ViewError(f"camera: a dancer's shift must be 3 finite numbers, got {shift.tolist()}")
+    out = _fit_path(cfg, scale, shift)
+    if scale != 1.0:  # the image is shared by every shot: at the top level only
+        image = dict(cfg.get("image") or {})
+        image["far"] = float(image.get("far", DEFAULT_IMAGE["far"])) * scale
+        out["image"] = image
+    return out
