@@ -110,7 +110,8 @@ CROWD_SUM_COLUMNS = ("faces", "verts", "nodes", "sim_s", "wall_s", "solver_itera
 
 CHARACTERS_FILE = "characters.csv"  # a crowd's per-character table, in its run folder
 CHARACTER_COLUMNS = ("character", "status", "frames", "sim_s_mean", "sim_total_s", "faces_mean", "wall_s_mean",
-                     "in_view_fraction")
+                     "in_view_fraction", "frames_out_of_view", "sim_s_out_of_view_mean", "sim_s_in_view_mean",
+                     "out_of_view_cost_ratio")
 
 
 def _column_stat(frames: pd.DataFrame, col: str, stat: str) -> float:
@@ -124,15 +125,25 @@ def characters_table(frames: list, summaries: list) -> pd.DataFrame:
     """One row per character of a crowd (CHARACTER_COLUMNS): its index, status, frames completed,
     mean simulation time per frame sim_s_mean (s) and its total sim_total_s, mean faces, mean
     wall time per frame, and in_view_fraction: the fraction of its frames with any face in the
-    camera's view (faces_in_view > 0; NaN without a camera). NaN where a character wrote no frame."""
+    camera's view (faces_in_view > 0; NaN without a camera). NaN where a character wrote no frame.
+    And what a character costs out of view: its frames wholly out of view (mode=viewdep's
+    character_out_of_view), their mean sim_s, the mean sim_s of its frames with a face in view, and
+    the ratio of the two (NaN unless the character has frames of both kinds)."""
     rows = []
     for i, (f, s) in enumerate(zip(frames, summaries)):
         in_view = f["faces_in_view"].astype(float) if "faces_in_view" in f.columns else pd.Series(dtype=float)
         in_view = in_view.dropna()
+        out = (f["character_out_of_view"].fillna(0) > 0 if "character_out_of_view" in f.columns
+               else pd.Series(False, index=f.index))
+        seen = f["faces_in_view"].fillna(0) > 0 if "faces_in_view" in f.columns else pd.Series(False, index=f.index)
+        t_out = _column_stat(f[out], "sim_s", "mean")
+        t_in = _column_stat(f[seen], "sim_s", "mean")
         rows.append({"character": i, "status": s.get("status", "missing"), "frames": int(len(f)),
                      "sim_s_mean": _column_stat(f, "sim_s", "mean"), "sim_total_s": _column_stat(f, "sim_s", "sum"),
                      "faces_mean": _column_stat(f, "faces", "mean"), "wall_s_mean": _column_stat(f, "wall_s", "mean"),
-                     "in_view_fraction": float((in_view > 0).mean()) if len(in_view) else float("nan")})
+                     "in_view_fraction": float((in_view > 0).mean()) if len(in_view) else float("nan"),
+                     "frames_out_of_view": int(out.sum()), "sim_s_out_of_view_mean": t_out, "sim_s_in_view_mean": t_in,
+                     "out_of_view_cost_ratio": t_out / t_in if t_in > 0 else float("nan")})
     return pd.DataFrame(rows, columns=list(CHARACTER_COLUMNS))
 
 
@@ -178,6 +189,7 @@ def combine_crowd(character_dirs: list, out_dir: Path, errors: dict | None = Non
         write_parquet_atomic(out_dir / "frames.parquet", rows)
     table = characters_table(frames, summaries)
     write_text_atomic(out_dir / CHARACTERS_FILE, table.to_csv(index=False))
+    ratios = table["out_of_view_cost_ratio"].dropna()
     order = ("completed", "interrupted", "diverged", "failed", "missing")
     status = max((s.get("status", "missing") for s in summaries), key=lambda x: order.index(x) if x in order else 9)
     summary = {"status": status, "characters": len(frames), **summarize(rows),
@@ -186,6 +198,10 @@ def combine_crowd(character_dirs: list, out_dir: Path, errors: dict | None = Non
                # the scene's notes (the same for every character) and each character's own, once each
                "notes": list(dict.fromkeys(n for s in summaries for n in s.get("notes", []))),
                **(extra or {}),
+               # a character wholly out of view against the same character in view (its frames of
+               # each kind, in this run): the median and the largest ratio over the characters
+               "out_of_view_cost_ratio_median": float(ratios.median()) if len(ratios) else None,
+               "out_of_view_cost_ratio_max": float(ratios.max()) if len(ratios) else None,
                # NaN (no camera, no frame) as null: summary.json stays strict JSON
                "character_table": [{k: (None if isinstance(v, float) and np.isnan(v) else v) for k, v in r.items()}
                                    for r in table.to_dict(orient="records")],

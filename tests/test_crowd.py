@@ -224,7 +224,9 @@ def test_a_tiny_crowd_gathers_its_characters_records(tmp_path, monkeypatch, back
     assert summary["sim_s_mean"] == pytest.approx(table["sim_s_mean"].sum(), rel=SUM_RTOL)
     assert summary["faces_mean"] == pytest.approx(table["faces_mean"].sum(), rel=SUM_RTOL)
     on_disk = json.loads((out / "summary.json").read_text())
-    assert pd.DataFrame(on_disk["character_table"]).equals(table)
+    # JSON's null is the table's NaN (a column of nulls reads back as objects)
+    pd.testing.assert_frame_equal(pd.DataFrame(on_disk["character_table"]).fillna(np.nan).infer_objects(),
+                                  table, check_dtype=False)
     # each character ran in a worker of its own backend: on Ray with one thread of everything
     workers = on_disk["workers"]
     assert len(workers) == 3 and all(w["pid"] != os.getpid() for w in workers)
@@ -344,3 +346,22 @@ def test_the_crowd_scaling_table_gives_the_speed_up_at_each_crowd_size(tmp_path)
     assert "At scale=paper the speed-up does not grow with the crowd" in md
     # crowds of other sizes never make Table 1's rows
     assert table1(table1_runs(runs[runs["study"] == "crowd_scaling"])).empty
+
+
+def test_the_character_table_gives_what_a_character_costs_out_of_view():
+    from cloth.runner import characters_table
+
+    # character 0: 2 frames in view at 0.2 s, 2 wholly out of view at 0.01 s, 1 in frame edge
+    # (no face in view, not beyond the margin: neither kind); character 1: always in view
+    f0 = pd.DataFrame({"sim_s": [0.2, 0.2, 0.01, 0.01, 0.05], "faces": [900, 900, 60, 60, 300],
+                       "wall_s": [0.3] * 5, "faces_in_view": [500, 400, 0, 0, 0],
+                       "character_out_of_view": [0, 0, 1, 1, 0]})
+    f1 = pd.DataFrame({"sim_s": [0.3, 0.1], "faces": [1000, 1000], "wall_s": [0.4, 0.2],
+                       "faces_in_view": [800, 700], "character_out_of_view": [0, 0]})
+    table = characters_table([f0, f1], [{"status": "completed"}] * 2)
+    assert table.loc[0, "frames_out_of_view"] == 2
+    assert table.loc[0, "sim_s_out_of_view_mean"] == pytest.approx(0.01)
+    assert table.loc[0, "sim_s_in_view_mean"] == pytest.approx(0.2)
+    assert table.loc[0, "out_of_view_cost_ratio"] == pytest.approx(0.05)
+    assert table.loc[1, "frames_out_of_view"] == 0 and np.isnan(table.loc[1, "out_of_view_cost_ratio"])
+    assert table.loc[1, "sim_s_in_view_mean"] == pytest.approx(0.2)
