@@ -2,8 +2,10 @@
 
 - "cholesky": sparse Cholesky factorization (MKL PARDISO through pypardiso, nested-dissection
   ordering). Its symbolic analysis is done once per sparsity pattern, that is once per remesh,
-  and every step refactors numerically only. Its cost grows close to linearly with the mesh
-  (experiments.benchmark), where block-Jacobi CG needs about sqrt(faces) iterations.
+  and every step refactors numerically only (a step's contacts change the matrix too much for
+  an older factor to precondition it in a few iterations: measured, it never converged within
+  four on the draped sheet). Its cost grows much more slowly with the mesh than block-Jacobi
+  CG's, which needs about sqrt(faces) iterations (experiments.benchmark).
 - "pcg": block-Jacobi preconditioned conjugate gradient (numba), capped at `max_iterations`.
 - "direct": SuperLU through scipy, refactored from scratch every step (a reference).
 - "auto" (the default): "cholesky" for systems of AUTO_CHOLESKY_UNKNOWNS unknowns or more where
@@ -33,6 +35,8 @@ METHODS = ("auto", "cholesky", "pcg", "direct")
 # 150-250 unknowns (out of view), PCG 0.13 ms per step against PARDISO's 1 ms; about 3,000
 # (1.8k faces in view), PARDISO ahead; the sheet's 3,267, 17 ms against 3 ms.
 AUTO_CHOLESKY_UNKNOWNS = 1500
+MKL_CBWR_AUTO = 2  # mkl_cbwr_set's mode: reproducible results on this machine's code path
+CNR_THREADS = 2  # PARDISO's threads in CNR mode (iparm 34); MKL runs on at most this many
 
 
 @functools.cache
@@ -45,11 +49,14 @@ def _pardiso_template():
         template = pypardiso.PyPardisoSolver(mtype=CholeskyFactor.SPD)
     except (ImportError, OSError):
         return None
-    # One thread, whatever MKL_NUM_THREADS says: PARDISO's parallel factorization sums in an order
-    # that varies from run to run, and its ordering follows the thread count; a run must replay
-    # bit for bit, and a crowd's character (in a worker process) match the same character run
-    # alone (tests/test_reproducibility.py).
-    template.libmkl.MKL_Set_Num_Threads(1)
+    # Conditional numerical reproducibility: PARDISO's parallel factorization would sum in an order
+    # that varies from run to run and with the thread count; a run must replay bit for bit, and a
+    # crowd's character (in a worker process, on one thread) match the same character run alone
+    # (tests/test_reproducibility.py, tests/test_assembly.py). With CNR on and iparm 34 fixed
+    # (CholeskyFactor.IPARM), the results are the same on 1 and CNR_THREADS threads (tested), so
+    # MKL is held to at most that many.
+    template.libmkl.MKL_CBWR_Set(MKL_CBWR_AUTO)
+    template.libmkl.MKL_Set_Num_Threads(min(CNR_THREADS, max(1, template.libmkl.MKL_Get_Max_Threads())))
     return template
 
 
@@ -225,11 +232,16 @@ class CholeskyFactor:
 
     The upper triangle of the scalar matrix, in CSR order, is gathered from the block data
     through an index map built once; PARDISO's analysis (ordering and symbolic factorization,
-    phase 11) runs once, and each `solve` refactors numerically (phase 22) and substitutes
-    (phase 33). A new pattern (after a remesh) gets a new factor.
+    phase 11) runs once, `factorize` refactors numerically (phase 22) and `substitute` solves
+    with the factor (phase 33). A new pattern (after a remesh) gets a new factor.
     """
 
     SPD = 2  # PARDISO matrix type: real symmetric positive definite
+    # iparm (1-based, as PARDISO's manual): our own settings (1), nested dissection (2: METIS),
+    # no iterative refinement (8: the caller checks the residual, and CG finishes if need be: a
+    # refinement step costs as much as the substitution), pivot perturbation 1e-8 (10: the
+    # manual's value for symmetric matrices), the thread count of reproducible results (34).
+    IPARM = {1: 1, 2: 2, 8: 0, 10: 8, 34: CNR_THREADS}
 
     def __init__(self, pattern: SparsityPattern):
         indptr, indices, self.map = _upper_triangle(pattern.indptr, pattern.indices)
@@ -241,6 +253,8 @@ class CholeskyFactor:
         self._pardiso = copy.copy(_pardiso_template())  # the library, with a handle of its own:
         self._pardiso.pt = np.zeros_like(self._pardiso.pt)
         self._pardiso.iparm = np.zeros_like(self._pardiso.iparm)
+        for k, v in self.IPARM.items():
+            self._pardiso.iparm[k - 1] = v
         self._analysed = False
 
     def __getstate__(self) -> dict:
@@ -258,16 +272,24 @@ class CholeskyFactor:
         # pypardiso documents phases as its advanced usage; _call_pardiso runs the set phase
         return self._pardiso._call_pardiso(self.upper, rhs)
 
-    def solve(self, data: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """x with A x = b for the block data `data` (n_blocks, 3, 3); b is (n, 3).
-        Raises pypardiso's PyPardisoError when the factorization fails (A not positive definite)."""
+    def factorize(self, data: np.ndarray) -> None:
+        """Factorize the block data `data` (n_blocks, 3, 3). Raises pypardiso's PyPardisoError
+        when the factorization fails (a matrix that is not positive definite)."""
         np.take(data.reshape(-1), self.map, out=self.upper.data)
-        rhs = np.asfortranarray(b.reshape(-1))
+        rhs = np.zeros(self.n)
         if not self._analysed:
             self._phase(11, rhs)
             self._analysed = True
         self._phase(22, rhs)
-        return self._phase(33, rhs).reshape(-1, 3)
+
+    def substitute(self, b: np.ndarray) -> np.ndarray:
+        """The factorized matrix's inverse applied to b (n, 3)."""
+        return self._phase(33, np.asfortranarray(b.reshape(-1))).reshape(-1, 3)
+
+    def solve(self, data: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """x with A x = b for the block data `data`, factorized afresh."""
+        self.factorize(data)
+        return self.substitute(b)
 
     def __del__(self):
         try:
@@ -305,8 +327,9 @@ def solve(pattern: SparsityPattern, data: np.ndarray, b: np.ndarray, options: So
     if method == "cholesky":
         from pypardiso.pardiso_wrapper import PyPardisoError  # noqa: PLC0415 - optional dependency
 
+        factor = _cholesky_of(pattern)
         try:
-            xc = _cholesky_of(pattern).solve(data, b)
+            xc = factor.solve(data, b)
         except PyPardisoError:
             xc = None  # not positive definite to PARDISO: PCG from the warm start
         if xc is not None and np.all(np.isfinite(xc)):
