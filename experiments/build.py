@@ -59,7 +59,11 @@ def _params(cls, values: dict, key: str):
     except TypeError as exc:  # an unknown key
         raise ConfigError(f"{key}: {exc}") from None
     except ValueError as exc:
-        raise ConfigError(f"{key}.{exc}") from None
+        message = str(exc)
+        last = key.rsplit(".", 1)[-1] + "."
+        if message.startswith(last):  # a message that names its own group (view.l_min_px ...)
+            message = message[len(last):]
+        raise ConfigError(f"{key}.{message}") from None
 
 
 def _plain(node):

@@ -276,3 +276,9 @@ def test_in_view_and_with_the_economy_off_every_frame_takes_the_scenes_steps():
     assert all(r["character_out_of_view"] for r in rows) and not any(r["remesh_skipped"] for r in rows)
     with pytest.raises(ConfigError, match="out_of_view_steps"):
         build_sim(SPHERE, "mode=viewdep", "camera=sheet_half", "mode.view.out_of_view_steps=0")
+
+
+def test_a_bad_view_value_names_its_key_once():
+    with pytest.raises(ConfigError) as info:
+        build_sim(SPHERE, "mode=viewdep", "camera=sheet_half", "mode.view.l_min_px=0")
+    assert str(info.value).startswith("mode.view.l_min_px") and "view.view" not in str(info.value)
