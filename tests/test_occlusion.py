@@ -88,8 +88,8 @@ def test_a_ball_between_the_camera_and_the_sheet_hides_the_faces_in_its_shadow()
     np.testing.assert_allclose(nu[inner], 0.2, atol=ROUNDOFF)
     np.testing.assert_allclose(nu[occluded & borders], 0.6, atol=ROUNDOFF)
 
-    # occlusion off (the default): the paper's rule, every face in frame and facing the camera is seen
-    nu_off, visible_off, _, _, occluded_off = remesher(**view).view_factors(mesh, 0.0)
+    # occlusion off: the paper's rule, every face in frame and facing the camera is seen
+    nu_off, visible_off, _, _, occluded_off = remesher(**{**view, "occlusion": False}).view_factors(mesh, 0.0)
     assert visible_off.all() and not occluded_off.any()
     np.testing.assert_array_equal(nu_off, 1.0)
 
@@ -181,11 +181,13 @@ def test_bad_occlusion_settings_in_the_config_name_the_key(override, key):
         build_sim("scene=sheet_on_sphere", "mode=viewdep", "camera=sheet_half", override)
 
 
-def test_occlusion_is_off_by_default():
-    """The paper's rule until the accuracy study decides: conf/mode/viewdep.yaml and ViewParams agree."""
+def test_occlusion_is_on_by_default_and_switches_off():
+    """On since the accuracy study found no loss: conf/mode/viewdep.yaml and ViewParams agree."""
     rem = build_sim("scene=sheet_on_sphere", "mode=viewdep", "camera=sheet_half").remesher
-    assert rem.view.occlusion is False and rem.view.occlusion_scale == 0.25
-    assert ViewParams().occlusion is False and ViewParams().occlusion_scale == 0.25
+    assert rem.view.occlusion is True and rem.view.occlusion_scale == 0.25
+    assert ViewParams().occlusion is True and ViewParams().occlusion_scale == 0.25
+    off = build_sim("scene=sheet_on_sphere", "mode=viewdep", "camera=sheet_half", "mode.view.occlusion=false")
+    assert off.remesher.view.occlusion is False
 
 
 def test_occluders_are_the_obstacles_display_meshes():
