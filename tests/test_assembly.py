@@ -58,6 +58,27 @@ def test_pattern_scatter_matches_dense_assembly():
         assert np.all(np.diff(row) > 0) and pattern.indices[pattern.diag[i]] == i
 
 
+def test_pattern_holds_exactly_the_element_node_pairs_and_maps_each_to_its_slot():
+    """The pattern's blocks are the sorted unique (row, col) pairs of the elements plus the
+    diagonal (isolated nodes too), and every element's slot holds its own pair."""
+    rng = np.random.default_rng(3)
+    n = 40
+    families = {"faces": rng.integers(0, n - 2, (60, 3)), "hinges": rng.integers(0, n - 2, (50, 4))}
+    pattern = SparsityPattern(n, families)
+    pairs = {(i, i) for i in range(n)}
+    for en in families.values():
+        pairs |= {(int(a), int(b)) for e in en for a in e for b in e}
+    rows = np.repeat(np.arange(n), np.diff(pattern.indptr))
+    assert sorted(pairs) == list(zip(rows.tolist(), pattern.indices.tolist(), strict=True))
+    assert np.array_equal(pattern.indices[pattern.diag], np.arange(n))
+    assert np.array_equal(rows[pattern.diag], np.arange(n))
+    for name, en in families.items():
+        slots = pattern.slots[name]
+        k = en.shape[1]
+        assert np.array_equal(rows[slots], np.repeat(en[:, :, None], k, axis=2))
+        assert np.array_equal(pattern.indices[slots], np.repeat(en[:, None, :], k, axis=1))
+
+
 def test_scatter_forces_and_matvec():
     mesh, pattern, data, dense, rng = _random_system(1)
     grad = rng.standard_normal((mesh.n_faces, 9))

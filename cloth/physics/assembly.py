@@ -33,23 +33,22 @@ class SparsityPattern:
 
     def __init__(self, n_nodes: int, families: dict[str, np.ndarray]):
         self.n_nodes = n_nodes
-        rows, cols = [np.arange(n_nodes, dtype=np.int64)], [np.arange(n_nodes, dtype=np.int64)]
-        for en in families.values():
-            k = en.shape[1]
-            rows.append(np.repeat(en, k, axis=1).reshape(-1).astype(np.int64))
-            cols.append(np.tile(en, (1, k)).reshape(-1).astype(np.int64))
-        r, c = np.concatenate(rows), np.concatenate(cols)
-        keys = np.unique(r * n_nodes + c)
-        self.indices = keys % n_nodes
-        self.indptr = np.zeros(n_nodes + 1, dtype=np.int64)
-        np.cumsum(np.bincount(keys // n_nodes, minlength=n_nodes), out=self.indptr[1:])
-        self.n_blocks = keys.size
-        self.diag = np.searchsorted(keys, np.arange(n_nodes, dtype=np.int64) * (n_nodes + 1))
-        self.slots = {}
-        for name, en in families.items():
-            k = en.shape[1]
-            pair = (np.repeat(en, k, axis=1).astype(np.int64) * n_nodes + np.tile(en, (1, k))).reshape(-1, k, k)
-            self.slots[name] = np.searchsorted(keys, pair)
+        stencils = [np.ascontiguousarray(en, dtype=np.int64) for en in families.values()]
+        counts = np.zeros(n_nodes, dtype=np.int64)  # upper bound of each row's blocks (with repeats)
+        for en in stencils:
+            _count_row_entries(en, counts)
+        bound = np.zeros(n_nodes + 1, dtype=np.int64)
+        np.cumsum(counts + 1, out=bound[1:])  # + 1: the diagonal
+        cols = np.empty(bound[-1], dtype=np.int64)
+        fill = bound[:-1].copy()
+        _seed_diagonal(cols, fill)
+        for en in stencils:
+            _fill_row_entries(en, cols, fill)
+        self.indptr, self.indices = _sorted_unique_rows(bound, fill, cols)
+        self.n_blocks = self.indices.size
+        self.diag = _find_slots_of_diagonal(self.indptr, self.indices)
+        self.slots = {name: _element_slots(np.ascontiguousarray(en, dtype=np.int64), self.indptr, self.indices)
+                      for name, en in families.items()}
 
     def zeros(self) -> np.ndarray:
         """A zero block array (n_blocks, 3, 3) for this pattern."""
@@ -59,6 +58,76 @@ class SparsityPattern:
         """Scalar CSR matrix (3n x 3n) of a block array, for direct solvers and inspection."""
         bsr = sp.bsr_matrix((data, self.indices, self.indptr), shape=(3 * self.n_nodes, 3 * self.n_nodes))
         return bsr.tocsr()
+
+
+@njit(cache=True)
+def _count_row_entries(element_nodes, counts):
+    """counts[a] += k for each node a of each element (k nodes): a bound on row a's blocks (accumulates)."""
+    n_elem, k = element_nodes.shape
+    for e in range(n_elem):
+        for a in range(k):
+            counts[element_nodes[e, a]] += k
+
+
+@njit(cache=True)
+def _seed_diagonal(cols, fill):
+    """Every row holds its diagonal block: cols[fill[i]] = i, fill[i] += 1 (edits both)."""
+    for i in range(fill.size):
+        cols[fill[i]] = i
+        fill[i] += 1
+
+
+@njit(cache=True)
+def _fill_row_entries(element_nodes, cols, fill):
+    """Append every element's node pairs (a, b) to row a's columns, repeats included (edits both)."""
+    n_elem, k = element_nodes.shape
+    for e in range(n_elem):
+        for a in range(k):
+            na = element_nodes[e, a]
+            for b in range(k):
+                cols[fill[na]] = element_nodes[e, b]
+                fill[na] += 1
+
+
+@njit(cache=True)
+def _sorted_unique_rows(bound, fill, cols):
+    """(indptr, indices): each row's columns cols[bound[i]:fill[i]] sorted, repeats removed."""
+    n = bound.size - 1
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    out = np.empty(cols.size, dtype=np.int64)
+    m = 0
+    for i in range(n):
+        row = np.sort(cols[bound[i]:fill[i]])
+        last = -1
+        for c in row:
+            if c != last:
+                out[m] = c
+                m += 1
+                last = c
+        indptr[i + 1] = m
+    return indptr, out[:m].copy()
+
+
+@njit(cache=True)
+def _find_slots_of_diagonal(indptr, indices):
+    diag = np.empty(indptr.size - 1, dtype=np.int64)
+    for i in range(diag.size):
+        diag[i] = indptr[i] + np.searchsorted(indices[indptr[i]:indptr[i + 1]], i)
+    return diag
+
+
+@njit(cache=True)
+def _element_slots(element_nodes, indptr, indices):
+    """(n_elem, k, k) slot of block (node a, node b) of every element: a search in row a."""
+    n_elem, k = element_nodes.shape
+    slots = np.empty((n_elem, k, k), dtype=np.int64)
+    for e in range(n_elem):
+        for a in range(k):
+            na = element_nodes[e, a]
+            lo, hi = indptr[na], indptr[na + 1]
+            for b in range(k):
+                slots[e, a, b] = lo + np.searchsorted(indices[lo:hi], element_nodes[e, b])
+    return slots
 
 
 @njit(cache=True)

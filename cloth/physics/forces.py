@@ -21,7 +21,7 @@ from numba import njit
 
 from cloth.core.mesh import Mesh
 from cloth.physics.assembly import SparsityPattern, scatter_blocks, scatter_forces
-from cloth.physics.bending import bending_elements, hinge_weight
+from cloth.physics.bending import GAUSS_NEWTON, bending_elements, hinge_weight
 from cloth.physics.membrane import membrane_elements
 
 
@@ -49,6 +49,16 @@ class ForceTerm:
 
     def accumulate(self, mesh: Mesh, t: float, acc: ForceAccumulator) -> None:
         raise NotImplementedError
+
+    def add_forces(self, mesh: Mesh, t: float, pattern: SparsityPattern, force: np.ndarray) -> None:
+        """Add this term's forces to `force` (n_nodes, 3) in place, without its stiffness.
+
+        The default assembles everything and keeps the forces; the elastic terms, whose stiffness
+        is most of their cost, override it (the remesh's pop filter needs the old mesh's forces).
+        """
+        acc = ForceAccumulator.zeros(mesh.n_nodes, pattern)
+        self.accumulate(mesh, t, acc)
+        force += acc.force
 
 
 class Membrane(ForceTerm):
@@ -78,6 +88,12 @@ class Membrane(ForceTerm):
         scatter_blocks(acc.K, self.slots, self.hess, 1.0)
         acc.energy[self.name] = float(self.energy.sum())
 
+    def add_forces(self, mesh, t, pattern, force):
+        # the Hessian unprojected: the projection's eigensolves are the costly part, and unused here
+        membrane_elements(mesh.node_x, mesh.face_nodes, mesh.face_Dm_inv, mesh.face_area,
+                          self.mu, self.lam, False, self.energy, self.grad, self.hess, self.alpha)
+        scatter_forces(force, mesh.face_nodes, self.grad, -1.0)
+
 
 class Bending(ForceTerm):
     """Discrete-shell dihedral-angle bending on interior edges (cloth.physics.bending)."""
@@ -106,6 +122,12 @@ class Bending(ForceTerm):
         scatter_forces(acc.force, self.stencil, self.grad, -1.0)
         scatter_blocks(acc.K, self.slots, self.hess, 1.0)
         acc.energy[self.name] = float(self.energy.sum())
+
+    def add_forces(self, mesh, t, pattern, force):
+        # Gauss-Newton: the gradient is the same, the Hessian a cheap outer product (unused here)
+        bending_elements(mesh.node_x, self.stencil, self.rest_theta, self.weight, GAUSS_NEWTON,
+                         self.energy, self.grad, self.hess)
+        scatter_forces(force, self.stencil, self.grad, -1.0)
 
 
 class Gravity(ForceTerm):

@@ -25,7 +25,7 @@ import numpy as np
 from cloth.core.mesh import Mesh
 from cloth.physics.assembly import SparsityPattern, apply_dirichlet, scatter_blocks, scatter_forces
 from cloth.physics.bending import GAUSS_NEWTON, bending_elements
-from cloth.physics.forces import ForceAccumulator, ForceTerm
+from cloth.physics.forces import ForceTerm
 from cloth.physics.linsolve import SolverOptions, solve
 from cloth.physics.membrane import membrane_elements
 
@@ -43,12 +43,12 @@ class PopFilterParams:
             raise ValueError(f"pop_filter.regularization must be > 0 N/m, got {self.regularization}")
 
 
-def internal_forces(mesh: Mesh, terms: list[ForceTerm], pattern: SparsityPattern) -> ForceAccumulator:
-    """Forces, stiffness and energy of the given (internal) terms on the whole mesh."""
-    acc = ForceAccumulator.zeros(mesh.n_nodes, pattern)
+def internal_forces(mesh: Mesh, terms: list[ForceTerm], pattern: SparsityPattern) -> np.ndarray:
+    """Forces (n_nodes, 3) of the given (internal) terms on the whole mesh, without their stiffness."""
+    force = np.zeros((mesh.n_nodes, 3))
     for term in terms:
-        term.accumulate(mesh, 0.0, acc)
-    return acc
+        term.add_forces(mesh, 0.0, pattern, force)
+    return force
 
 
 class _Region:
