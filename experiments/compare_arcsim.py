@@ -157,12 +157,15 @@ def arcsim_cloth_frames(out_dir: Path, cloth: str) -> dict[int, list[Path]]:
 
 def run_records(run_dir: Path) -> pd.DataFrame:
     """The run's per-frame records: frames.parquet, or a killed run's frames.jsonl; empty if neither."""
-    if (run_dir / "frames.parquet").is_file():
-        frames = pd.read_parquet(run_dir / "frames.parquet")
-    elif (run_dir / JOURNAL_FILE).is_file():
-        frames = read_journal(run_dir / JOURNAL_FILE)
-    else:
-        frames = pd.DataFrame()
+    try:
+        if (run_dir / "frames.parquet").is_file():
+            frames = pd.read_parquet(run_dir / "frames.parquet")
+        elif (run_dir / JOURNAL_FILE).is_file():
+            frames = read_journal(run_dir / JOURNAL_FILE)
+        else:
+            frames = pd.DataFrame()
+    except Exception as exc:  # noqa: BLE001 - pyarrow raises several kinds for a broken file
+        raise CompareError(f"run folder {run_dir}: its frame records cannot be read ({type(exc).__name__})") from None
     if "frame" not in frames.columns:  # an empty journal: no frame finished
         return pd.DataFrame({"frame": pd.Series(dtype=int)})
     return with_sim_seconds(frames)
