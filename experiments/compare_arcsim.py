@@ -418,6 +418,9 @@ def main(argv=None) -> int:
     write_json_atomic(out / "summary.json", summary)
     plot(table, out / "compare.png")
     print(printed_tables(table, summary))
+    missing = {k: v for k, v in summary["missing"].items() if v}
+    if missing:
+        print("missing (frames): " + "; ".join(f"{k} {v}" for k, v in missing.items()))
     for note in summary["notes"]:
         print(f"note: {note}")
     print(f"written: {out / 'compare.csv'}, {out / 'summary.json'}, {out / 'compare.png'}")

@@ -269,6 +269,7 @@ def test_cli_writes_its_three_files_and_prints_the_table(constructed, tmp_path):
     out = run / "compare_arcsim"  # the default --out
     assert {p.name for p in out.iterdir()} == {"compare.csv", "summary.json", "compare.png"}
     assert "dist_mean_m" in r.stdout and "over 5 frames (0-4)" in r.stdout and "median" in r.stdout
+    assert "missing (frames): arcsim_time 0; run_time 0; run_shape 4" in r.stdout
 
 
 def test_a_real_run_against_its_own_states_written_as_arcsim(quiet_run, tmp_path):
