@@ -4,7 +4,7 @@ per frame, and how far apart the two cloths are.
     python -m experiments.compare_arcsim ARCSIM_OUT RUN_DIR [--out DIR] [--cloth 0|all] [--frames a:b]
                                          [--spacing M]
 
-ARCSIM_OUT is the folder of ``arcsim simulate conf.json ARCSIM_OUT`` (cloth.io.arcsim reads it);
+ARCSIM_OUT is the folder of ``arcsim simulate conf.json ARCSIM_OUT`` (cloth.io.arcsim_output reads it);
 RUN_DIR a run folder of ``python -m experiments.run`` (run it with ``output.states_every=1`` for
 the cloth's shape at every frame; without, only the last frame, ``final_state.npz``, and any
 ``output.obj_every`` frames have one).
@@ -62,7 +62,7 @@ from cloth.eval.surface import (  # noqa: E402
     material_area,
     surface_distance,
 )
-from cloth.io import arcsim  # noqa: E402
+from cloth.io import arcsim_output as arcsim  # noqa: E402
 from cloth.io.checkpoint import FINAL_STATE_FILE, CheckpointError, load_final_state  # noqa: E402
 from cloth.io.manifest import atomic_write, write_json_atomic, write_text_atomic  # noqa: E402
 from cloth.io.obj import ObjError, load_obj  # noqa: E402

@@ -1,6 +1,6 @@
 """ARCSim's output beside a run (experiments.compare_arcsim), and what it is made of: the surface
 distance and bounding boxes of cloth.eval.surface against hand-computed cases, the reader of
-ARCSim's output folder (cloth.io.arcsim) on files written here in ARCSim's format (src/io.cpp
+ARCSim's output folder (cloth.io.arcsim_output) on files written here in ARCSim's format (src/io.cpp
 save_obj, src/runphysics.cpp save_timings), the frames and columns of the comparison, its bad
 inputs and its command line."""
 
@@ -15,7 +15,7 @@ from helpers import read_frames, run_module, write_run
 
 from cloth.core.mesh import grid_mesh
 from cloth.eval.surface import bounding_box_difference, centroid_pattern, surface_distance, surface_samples
-from cloth.io import arcsim
+from cloth.io import arcsim_output as arcsim
 from cloth.io.states import load_state, save_state
 from experiments.compare_arcsim import main, parse_frames, ranges
 
@@ -129,7 +129,7 @@ def test_bounding_box_difference_is_exact():
                    "max_dx_m": 0.5, "max_dy_m": -1.0, "max_dz_m": 0.0, "largest_m": 1.0}
 
 
-# ---- cloth.io.arcsim ---------------------------------------------------------------------------
+# ---- cloth.io.arcsim_output ---------------------------------------------------------------------------
 
 def test_arcsim_folder_is_read_as_arcsim_writes_it(tmp_path):
     m = sheet(n=3)
