@@ -8,7 +8,8 @@ import pytest
 from helpers import compose_config, config_choices, run_module
 from hydra.errors import MissingConfigException
 
-from experiments.build import ConfigError, build_simulation
+from cloth.view.paths import StaticPath
+from experiments.build import ConfigError, build_camera, build_simulation
 
 SCENES = config_choices("scene")
 MATERIALS = config_choices("material")
@@ -21,6 +22,20 @@ def test_every_scene_and_scale_builds(scene, scale):
     sim, frames = build_simulation(compose_config(f"scene={scene}", f"scale={scale}"))
     assert frames >= 1 and sim.mesh.n_faces > 0
     assert sim.scene.name.split("/")[0] == scene  # a crowd names its character: scene/dancer_00
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_a_fixed_camera_by_position_and_target_for_every_scene(scene):
+    # conf/camera/fixed.yaml replaces any scene's own camera work (a character scene's shots too)
+    cfg = compose_config(f"scene={scene}", "camera=fixed", "camera.position=[1.5,-2.0,1.2]",
+                         "camera.target=[0.1,0.2,0.3]", "camera.up=[0,1,0]", "camera.fov_y_deg=25")
+    path = build_camera(cfg)
+    assert isinstance(path, StaticPath) and path.camera_at(0.0) is path.camera_at(5.0)
+    cam = path.camera
+    assert cam.position == (1.5, -2.0, 1.2) and cam.look_at == (0.1, 0.2, 0.3)  # look_at follows target
+    assert cam.up == (0.0, 1.0, 0.0) and cam.fov_y_deg == 25.0
+    assert (cam.width, cam.height) == (1280, 720)
+    assert build_camera(compose_config(f"scene={scene}", "camera=fixed")).camera.look_at == (0.0, 0.0, 0.5)
 
 
 @pytest.mark.parametrize("material", MATERIALS)

@@ -4,7 +4,8 @@ The view-dependent sizing needs the camera now and over the next T seconds (anti
 paper eq 4), so a path is a pure function of time. Paths are built from plain dicts
 (`path_from_config`), which is what `conf/camera/*.yaml` holds:
 
-    type: static     camera: {position, look_at, up, fov_y_deg}
+    type: static     camera: {position, look_at, up, fov_y_deg}   (or those keys at the top level:
+                     conf/camera/fixed.yaml, whose `target` its `look_at` follows)
     type: orbit      center, radius, height, period_s, phase_deg, fov_y_deg, up
     type: keyframes  keys: [{t, position, look_at, up?, fov_y_deg?}, ...]   (C1 Catmull-Rom)
     type: cuts       shots: [{start, <a path>}, ...]   an instant switch at each start time
