@@ -297,6 +297,8 @@ class Simulation:
     def step(self, timings: dict, stats: dict) -> None:
         """One implicit step with its contact and collision stages."""
         stages, mesh, h = self.stages, self.scene.mesh, self.dt
+        for handle in self.scene.handles:  # a handle past its end_time lets go of its nodes
+            handle.release(mesh.node_pinned, self.time)
         collide = stages.self_collision or stages.obstacle_ccd
         x_start = mesh.node_x.copy() if collide else None
         y_start = self._mesh_obstacle_positions() if stages.obstacle_ccd else None

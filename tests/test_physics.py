@@ -326,6 +326,43 @@ def test_handles_follow_their_prescribed_motion_exactly():
     assert np.all(sim.mesh.node_pinned[left]) and np.all(np.isfinite(sim.mesh.node_x))
 
 
+@pytest.mark.parametrize("mode", ["nonadaptive", "adaptive"])
+def test_a_handle_holds_until_its_end_time_and_then_lets_go(mode):
+    """ARCSim's handle end_time: pinned on their targets before it, free (falling) after it,
+    whatever the remesher did to the nodes in between."""
+    from cloth.collision.obstacles import Static
+    from cloth.core.scene import Handle
+
+    mesh = grid_mesh(0.6, 0.6, 6, 6, origin=(0, 0, 1.0))
+    corners = np.array([0, 6])  # the corners at v = 0
+    end_time = 0.1  # s: 3 frames of 1/30 s
+    scene = Scene("release", mesh, COTTON, {"membrane", "bending", "gravity", "damping"}, frame_time=1 / 30,
+                  steps_per_frame=3, handles=[Handle(corners, Static(), end_time=end_time)])
+    held = mesh.node_x[corners].copy()
+    sim = simulation_in_mode(scene, mode)
+    handle = sim.scene.handles[0]
+    for _ in range(3):
+        sim.advance_frame()
+        assert handle.nodes.size >= 2 and np.all(sim.mesh.node_pinned[handle.nodes])
+        x = sim.mesh.node_x[handle.nodes]
+        assert np.linalg.norm(x[:, None, :] - held[None], axis=2).min(axis=0).max() < ROUNDOFF_M
+    sim.advance_frame()
+    assert sim.time > end_time and handle.nodes.size == 0 and not sim.mesh.node_pinned.any()
+    for _ in range(2):
+        sim.advance_frame()
+    assert sim.mesh.node_x[:, 2].max() < held[:, 2].min() - 0.01  # nothing holds the sheet up
+
+
+def test_a_handle_that_ends_before_it_starts_is_named():
+    from cloth.collision.obstacles import Static
+    from cloth.core.scene import Handle, SceneError
+
+    mesh = grid_mesh(0.6, 0.6, 2, 2)
+    with pytest.raises(SceneError, match="end_time"):
+        Scene("release", mesh, COTTON, {"membrane"}, frame_time=1 / 30, steps_per_frame=1,
+              handles=[Handle(np.array([0]), Static(), end_time=0.0)])
+
+
 def test_wind_drag_velocity_jacobian_matches_finite_differences():
     from cloth.physics.forces import drag_elements
 

@@ -28,11 +28,14 @@ class Handle:
     """Nodes whose positions follow a prescribed rigid motion (a pin when the motion is static).
 
     The nodes' positions at t = 0 are taken as attached to the moving frame:
-    target(t) = R(t) R(0)^T (x(0) - p(0)) + p(t).
+    target(t) = R(t) R(0)^T (x(0) - p(0)) + p(t). At `end_time` the handle lets go: its nodes
+    become free (:meth:`release`, called by the frame loop before the first step that starts at
+    or after it) and it holds no node from then on (ARCSim's handles' `end_time`).
     """
 
     nodes: np.ndarray  # (k,) int: node indices
     motion: object  # a cloth.collision.obstacles motion: pose(t) -> (R (3,3), p (3,))
+    end_time: float = float("inf")  # s, when the handle releases its nodes
     local: np.ndarray = field(init=False, default=None)  # (k, 3) positions in the motion's frame
 
     def attach(self, node_x: np.ndarray) -> None:
@@ -43,6 +46,15 @@ class Handle:
     def targets(self, t: float) -> np.ndarray:
         R, p = self.motion.pose(t)
         return self.local @ R.T + p
+
+    def release(self, node_pinned: np.ndarray, t: float) -> bool:
+        """At or after end_time, unpin the nodes (edits `node_pinned`) and hold none; True if it did."""
+        if t < self.end_time or self.nodes.size == 0:
+            return False
+        node_pinned[self.nodes] = False
+        self.nodes = np.zeros(0, dtype=np.int64)
+        self.local = np.zeros((0, 3))
+        return True
 
 
 @dataclass
@@ -93,6 +105,8 @@ class Scene:
             raise SceneError(f"scene {self.name!r}: thickness and friction must be >= 0")
         self.mesh.update_rest_data(self.material.density)
         for handle in self.handles:
+            if not handle.end_time > 0:
+                raise SceneError(f"scene {self.name!r}: a handle's end_time must be > 0 s, got {handle.end_time}")
             handle.attach(self.mesh.node_x)
             self.mesh.node_pinned[handle.nodes] = True
 
