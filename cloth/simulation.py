@@ -124,7 +124,7 @@ def build_force_terms(scene: Scene) -> list[ForceTerm]:
         terms.append(Gravity(scene.gravity))
     if "wind" in scene.effects:
         w = scene.wind
-        terms.append(Wind(w.velocity, w.drag, w.gust_amplitude, w.gust_frequency))
+        terms.append(Wind(w.velocity, w.drag, w.gust_amplitude, w.gust_frequency, w.density, w.drag_tangential))
     return terms
 
 

@@ -366,15 +366,17 @@ def test_a_handle_that_ends_before_it_starts_is_named():
 def test_wind_drag_velocity_jacobian_matches_finite_differences():
     from cloth.physics.forces import drag_elements
 
-    # the drag force is linear in the velocities, so central differences are exact up to round-off
+    # the linear drags are linear in the velocities, so central differences are exact up to
+    # round-off; the quadratic pressure's are exact up to round-off too (|v_n| v_n is quadratic
+    # on each side of v_n = 0, which no face crosses within the step)
     rng = np.random.default_rng(2)
     mesh = grid_mesh(1.0, 1.0, 2, 2)
     x = mesh.node_x + 0.1 * rng.standard_normal(mesh.node_x.shape)
     v = rng.standard_normal(mesh.node_x.shape)
-    wind, drag = np.array([3.0, 1.0, 0.5]), 0.7
+    wind, drag, density, tangential = np.array([3.0, 1.0, 0.5]), 0.7, 1.2, 0.3
     F = mesh.n_faces
     f0, J = np.empty((F, 9)), np.empty((F, 9, 9))
-    drag_elements(x, v, mesh.face_nodes, wind, drag, f0, J)
+    drag_elements(x, v, mesh.face_nodes, wind, drag, density, tangential, f0, J)
     step = 1e-6
     for face in range(F):
         fd = np.empty((9, 9))
@@ -383,10 +385,23 @@ def test_wind_drag_velocity_jacobian_matches_finite_differences():
             vp[mesh.face_nodes[face, col // 3], col % 3] += step
             vm[mesh.face_nodes[face, col // 3], col % 3] -= step
             fp, fm, Jt = np.empty((F, 9)), np.empty((F, 9)), np.empty((F, 9, 9))
-            drag_elements(x, vp, mesh.face_nodes, wind, drag, fp, Jt)
-            drag_elements(x, vm, mesh.face_nodes, wind, drag, fm, Jt)
+            drag_elements(x, vp, mesh.face_nodes, wind, drag, density, tangential, fp, Jt)
+            drag_elements(x, vm, mesh.face_nodes, wind, drag, density, tangential, fm, Jt)
             fd[:, col] = -(fp[face] - fm[face]) / (2 * step)  # J = -df/dv
         assert np.abs(fd - J[face]).max() < LINEAR_FD_TOL * np.abs(J[face]).max()
+        assert np.linalg.eigvalsh(J[face]).min() > -LINEAR_FD_TOL * np.abs(J[face]).max()
+
+
+def test_arcsim_wind_force_on_a_hand_computed_face():
+    """A face in the xy plane (normal +z, area 0.5) at rest in a wind (1, 0, 2) m/s: the normal part
+    is A rho |v_n| v_n = 0.5 * 1.2 * 4 = 2.4 N along z, the tangential part A d v_t = 0.5 * 0.3 * 1
+    = 0.15 N along x, a third of each on every node."""
+    from cloth.physics.forces import drag_elements
+
+    x = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    f, J = np.empty((1, 9)), np.empty((1, 9, 9))
+    drag_elements(x, np.zeros((3, 3)), np.array([[0, 1, 2]]), np.array([1.0, 0.0, 2.0]), 0.0, 1.2, 0.3, f, J)
+    assert np.allclose(f[0].reshape(3, 3), np.array([0.15, 0.0, 2.4]) / 3.0, rtol=0.0, atol=ROUNDOFF_M)
 
 
 def test_a_solve_stopped_at_its_iteration_cap_is_recorded_and_noted(tmp_path):

@@ -63,6 +63,8 @@ class Wind:
     drag: float  # kg/(m^2 s), normal drag coefficient (force per area per m/s of normal speed)
     gust_amplitude: float = 0.0  # fraction of the mean speed
     gust_frequency: float = 0.0  # Hz
+    density: float = 0.0  # kg/m^3, quadratic normal pressure rho |v_n| v_n per area (ARCSim's wind density)
+    drag_tangential: float = 0.0  # kg/(m^2 s), drag along the cloth (ARCSim's wind drag)
 
 
 @dataclass

@@ -144,11 +144,17 @@ class Gravity(ForceTerm):
 
 
 @njit(cache=True)
-def drag_elements(node_x, node_v, face_nodes, wind, drag, out_force, out_jac):
-    """Normal air drag per face: f = c A ((w - v_mean).n) n, a third to each node.
+def drag_elements(node_x, node_v, face_nodes, wind, drag, density, drag_tangential, out_force, out_jac):
+    """Air drag per face against the wind w, a third of the face's force to each node:
 
-    A is the world area, n the unit world normal; the Jacobian -df_a/dv_b = c A/9 n n^T
-    (the dependence of A and n on positions is neglected, as is usual for drag).
+        f = A [(c v_n + rho |v_n| v_n) n + d v_t],   v_rel = w - v_mean,  v_n = v_rel . n,
+                                                      v_t = v_rel - v_n n,
+
+    with A the world area and n the unit world normal: a linear normal drag c (kg/(m^2 s)), the
+    quadratic pressure of air of density rho (kg/m^3) and a linear tangential drag d
+    (kg/(m^2 s)); ARCSim's wind is rho and d (with the material area for A). The velocity
+    Jacobian, -df_a/dv_b = A/9 [(c + 2 rho |v_n|) n n^T + d (I - n n^T)], is positive
+    semi-definite; the dependence of A and n on positions is neglected, as is usual for drag.
     """
     for f in range(face_nodes.shape[0]):
         i0, i1, i2 = face_nodes[f, 0], face_nodes[f, 1], face_nodes[f, 2]
@@ -166,12 +172,18 @@ def drag_elements(node_x, node_v, face_nodes, wind, drag, out_force, out_jac):
         n = n / ln
         vrel = wind - (node_v[i0] + node_v[i1] + node_v[i2]) / 3.0
         vn = vrel[0] * n[0] + vrel[1] * n[1] + vrel[2] * n[2]
+        normal = area * (drag * vn + density * abs(vn) * vn)
+        k_n = area * (drag + 2.0 * density * abs(vn)) / 9.0
+        k_t = area * drag_tangential / 9.0
         for a in range(3):
             for d in range(3):
-                out_force[f, 3 * a + d] = drag * area * vn * n[d] / 3.0
+                out_force[f, 3 * a + d] = (normal * n[d] + area * drag_tangential * (vrel[d] - vn * n[d])) / 3.0
                 for b in range(3):
                     for e in range(3):
-                        out_jac[f, 3 * a + d, 3 * b + e] = drag * area * n[d] * n[e] / 9.0
+                        k = (k_n - k_t) * n[d] * n[e]
+                        if d == e:
+                            k += k_t
+                        out_jac[f, 3 * a + d, 3 * b + e] = k
 
 
 class Wind(ForceTerm):
@@ -179,10 +191,13 @@ class Wind(ForceTerm):
 
     name = "wind"
 
-    def __init__(self, velocity, drag: float, gust_amplitude: float = 0.0, gust_frequency: float = 0.0):
+    def __init__(self, velocity, drag: float, gust_amplitude: float = 0.0, gust_frequency: float = 0.0,
+                 density: float = 0.0, drag_tangential: float = 0.0):
         self.velocity = np.asarray(velocity, dtype=np.float64)  # m/s
         self.drag = float(drag)  # kg/(m^2 s): normal force per area per unit normal speed
         self.gust_amplitude, self.gust_frequency = float(gust_amplitude), float(gust_frequency)
+        self.density = float(density)  # kg/m^3: quadratic normal pressure rho |v_n| v_n (ARCSim's wind)
+        self.drag_tangential = float(drag_tangential)  # kg/(m^2 s): tangential drag (ARCSim's wind drag)
 
     families = ("faces",)
 
@@ -195,7 +210,8 @@ class Wind(ForceTerm):
         return self.velocity * (1.0 + self.gust_amplitude * np.sin(2 * np.pi * self.gust_frequency * t))
 
     def accumulate(self, mesh, t, acc):
-        drag_elements(mesh.node_x, mesh.node_v, mesh.face_nodes, self.wind_at(t), self.drag, self.f, self.jac)
+        drag_elements(mesh.node_x, mesh.node_v, mesh.face_nodes, self.wind_at(t), self.drag, self.density,
+                      self.drag_tangential, self.f, self.jac)
         scatter_forces(acc.force, mesh.face_nodes, self.f, 1.0)
         scatter_blocks(acc.D, self.slots, self.jac, 1.0)
 
