@@ -212,17 +212,20 @@ def member(obj: dict, name: str, parent: str, ctx: ConfContext, convert, default
 
 
 def check_keys(obj: dict, parent: str, ctx: ConfContext, supported: Iterable[str],
-               unsupported: Mapping[str, str] | None = None) -> None:
+               unsupported: Mapping[str, str] | None = None, renamed: Mapping[str, str] | None = None) -> None:
     """Every key of `obj` is `supported`; a key ARCSim knows but this reader does not support
-    (`unsupported`: key -> what it is) and any other key each raise an error naming the key."""
+    (`unsupported`: key -> what it is), a key ARCSim spells otherwise (`renamed`: key -> ARCSim's
+    key) and any other key each raise an error naming the key."""
     supported = tuple(supported)
-    unsupported = unsupported or {}
+    unsupported, renamed = unsupported or {}, renamed or {}
     for name in obj:
         if name in supported:
             continue
         key = join_key(parent, name)
         if name in unsupported:
             raise ctx.error(key, f"not supported by this reader: {unsupported[name]}")
+        if name in renamed:
+            raise ctx.error(key, f"unknown key: ARCSim reads this as {renamed[name]!r}")
         raise ctx.error(key, f"unknown key (known here: {', '.join(supported)})")
 
 
