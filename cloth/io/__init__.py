@@ -1,5 +1,7 @@
 """I/O at the edge: OBJ meshes and OBJ sequences, per-frame states, checkpoints and final states,
-run manifests and atomic writes, Rerun recordings (behind a do-nothing recorder) and stills.
+run manifests and atomic writes, Rerun recordings (behind a do-nothing recorder) and stills; ARCSim
+scene configurations read into plain data (:mod:`cloth.io.arcsim`, with :mod:`cloth.io.arcsim_motion`,
+:mod:`cloth.io.arcsim_mesh` and :mod:`cloth.io.arcsim_json`).
 
 May import: ``cloth.core``, ``cloth.collision`` (obstacle shapes to save) and ``cloth.view``
 (the camera of a still); never ``cloth.simulation``.

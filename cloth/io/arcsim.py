@@ -54,6 +54,14 @@ materials (``thickness``, ``density``, ``elastic_modulus``, ``poisson_ratio``, `
 ``passive_time``, ``save_every``; circle, glue and soft handles and label handles (``label``);
 OBJ extension lines (labels, velocities, edges; :data:`cloth.io.arcsim_mesh.ARCSIM_OBJ_EXTENSIONS`).
 ``obstacle_friction`` is an error pointing at ``obs_friction`` (neither version reads it).
+
+ARCSim 0.2.1's 17 example configs: crush, crush2, dress-blue, dress-yellow, flag, sleeve, sphere,
+square and square-pop load; crumple, crumple-pnas and tshirt fail on plasticity (``yield_curv``),
+cylinder and fold on node labels in their meshes (and circle handles, plasticity), dart on OBJ
+edges (and plasticity), karate on its empty .mot file in the public snapshot (it loads with a
+readable one), sphere-annotated on ``handles[0].vertices`` (ARCSim reads ``nodes``: ARCSim itself
+aborts on that file). Of 0.3.1's: flag, sphere, square and square-pop load; paper-tearing and
+sphere-break fail on ``remeshing_frames`` (read by neither version).
 """
 
 from __future__ import annotations
@@ -104,8 +112,8 @@ MODULES = frozenset({"proximity", "physics", "strainlimiting", "collision", "rem
 # to 0.1 x the (possibly configured) ``repulsion_thickness``, as conf.cpp reads it.
 MAGIC_DEFAULTS = {
     "fixed_high_res_mesh": False,  # bool
-    "handle_stiffness": 1e3,  # N/m per unit handle strength (scaled by the node's mass in the solve)
-    "collision_stiffness": 1e9,
+    "handle_stiffness": 1e3,  # N/m: a handle constraint's energy is stiffness x strength x distance^2 / 2
+    "collision_stiffness": 1e9,  # of the repulsion penalty (its energy also divides by repulsion_thickness)
     "repulsion_thickness": 1e-3,  # m
     "projection_thickness": 1e-4,  # m
     "edge_flip_threshold": 1e-2,
@@ -307,7 +315,8 @@ class ArcsimConfig:
     @property
     def disabled_modules(self) -> frozenset:
         """The modules ARCSim leaves off: `disable`, plus strain limiting when no material has a
-        finite strain limit, plus plasticity (no supported material has a yield curvature)."""
+        finite strain limit, plus plasticity and fracture (no supported material has a yield
+        curvature or a toughness)."""
         off = set(self.disable) | {"plasticity", "fracture"}
         if not any(m.strain_limited for c in self.cloths for m in c.materials):
             off.add("strainlimiting")

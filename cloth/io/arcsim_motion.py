@@ -160,6 +160,8 @@ class Transformation:
     def inverse(self) -> Transformation:
         """The inverse map (ARCSim's inverse: scale 1/s, rotation q^-1, translation -R(q^-1) t / s)."""
         q = self.rotation
+        if self.scale == 0 or not np.any(q):
+            raise ArcsimMotionError(f"{self!r} has no inverse (zero scale or rotation)")
         q_inv = np.concatenate([[q[0]], -q[1:]]) / float(q @ q)
         scale = 1.0 / self.scale
         return Transformation(-(quat_matrix(q_inv) @ (scale * self.translation)), q_inv, scale)
