@@ -25,6 +25,10 @@ belongs to a face. Lines whose keyword ARCSim does not read (``vn``, ``g``, ``us
 are ignored, as ARCSim ignores them; ARCSim's own extension lines (:data:`ARCSIM_OBJ_EXTENSIONS`:
 labels, velocities, edges, plastic state) carry state this reader does not support and are an
 error naming the line.
+
+The ``v``/``vt``/``f`` lines are parsed by :func:`cloth.io.obj.read_obj`. Its garment builder
+(:func:`cloth.io.obj.garment_arrays`) does not fit: it numbers vertices as trimesh does and merges
+nodes by position, while ARCSim's handles name nodes by their ``v`` line.
 """
 
 from __future__ import annotations
