@@ -224,3 +224,18 @@ def test_the_frame_record_counts_faces_at_the_sizing_bounds():
     assert rec["faces_at_size_max"] == 8 and rec["faces_at_size_min"] == 0 and rec["faces_sized"] == 8
     fixed = build_sim("scene=hanging_sheet", "scene.scales.small.resolution=2").advance_frame()
     assert fixed["faces_at_size_min"] == 0 and np.isnan(fixed["edge_at_size_min_m"])
+
+
+def test_push_strain_is_the_largest_push_over_the_shortest_edge_at_its_node():
+    from cloth.core.mesh import grid_mesh
+    from cloth.remeshing.adaptive import push_strain
+
+    mesh = grid_mesh(1.0, 0.5, 4, 4)  # cells 0.25 x 0.125 m: every node's shortest edge is 0.125 m
+    mesh.update_rest_data(0.1)
+    d = np.zeros((mesh.n_nodes, 3))
+    moved = np.zeros(mesh.n_nodes, bool)
+    assert push_strain(mesh, d, moved) == 0.0
+    d[7] = (0.0, 0.0, 0.005)  # 5 mm
+    d[12] = (0.001, 0.0, 0.0)
+    moved[[7, 12]] = True
+    assert push_strain(mesh, d, moved) == pytest.approx(0.005 / 0.125, rel=1e-12)
