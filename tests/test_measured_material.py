@@ -345,6 +345,24 @@ def test_membrane_gradient_and_hessian_at_fixed_stiffness_match_finite_differenc
     assert np.array_equal(H, H.T)
 
 
+def test_the_gradient_is_arcsims_stretching_force():
+    """ARCSim's force, written as in its stretching_force: with D = Dm^-T [[-1, 1, 0], [-1, 0, 1]]
+    (rows du, dv), Du = du^T kron I3, fuu = Du^T x_u, fvv = Dv^T x_v, fuv = (Du^T x_v + Dv^T x_u)/2,
+    grad = A (k0 G00 fuu + k2 G11 fvv + k1 (G00 fvv + G11 fuu) + 2 k3 G01 fuv)."""
+    k = STIFFNESS[0]
+    for B, A, x in CASES:
+        X = x.reshape(3, 3).T  # columns: the nodes
+        D = B.T @ np.array([[-1.0, 1.0, 0.0], [-1.0, 0.0, 1.0]])
+        Du, Dv = np.kron(D[0][None, :], np.eye(3)), np.kron(D[1][None, :], np.eye(3))
+        xu, xv = X @ D[0], X @ D[1]
+        G = 0.5 * (np.array([[xu @ xu, xu @ xv], [xv @ xu, xv @ xv]]) - np.eye(2))
+        fuu, fvv, fuv = Du.T @ xu, Dv.T @ xv, 0.5 * (Du.T @ xv + Dv.T @ xu)
+        arcsim = A * (k[0] * G[0, 0] * fuu + k[2] * G[1, 1] * fvv + k[1] * (G[0, 0] * fvv + G[1, 1] * fuu)
+                      + 2 * k[3] * G[0, 1] * fuv)
+        _, g, _ = _element(x, B, A, k, 1.0)
+        assert np.allclose(g, arcsim, rtol=0, atol=ROUNDOFF * np.abs(arcsim).max())
+
+
 @pytest.mark.parametrize("alpha", [1.0, 0.3, 0.0])
 def test_isotropic_stiffness_reproduces_the_stvk_membrane_with_its_buckling_filter(alpha):
     """k = (2 mu + lam, lam, 2 mu + lam, 2 mu) is StVK: energy, gradient and Hessian agree with the

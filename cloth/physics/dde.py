@@ -18,8 +18,9 @@ Bending: the stiffness ke of a hinge (:func:`bending_stiffness`) interpolates th
     d = the edge's direction in material space, folded into [0, 2] (0: along u, 1: at 45
         degrees, 2: along v; :func:`edge_direction`),
 
-with theta ARCSim's signed dihedral angle, l the rest length of the edge and A_0, A_1 the rest
-areas of its faces, and clamps the result at 0. ARCSim's theta is the opposite of this project's
+with theta ARCSim's signed dihedral angle now (ARCSim's edge->theta, refreshed after each
+step's collisions: the step's start), l the rest length of the edge and A_0, A_1 the rest areas
+of its faces, and clamps the result at 0. ARCSim's theta is the opposite of this project's
 (cloth.physics.bending.dihedral_angle: positive when the hinge folds away from face A's normal;
 ARCSim's sine is taken about the edge's other direction), so theta_ARCSim = -theta here. ARCSim
 clamps v from above only: a hinge with theta_ARCSim < 0 extrapolates the first two curvature
@@ -170,7 +171,14 @@ def hinge_rest_data(mesh):
     length = 0.5 * (np.linalg.norm(du[:, 0], axis=1) + np.linalg.norm(du[:, 1], axis=1))
     area = mesh.face_area[faces[:, 0]] + mesh.face_area[faces[:, 1]]
     direction = np.empty((idx.size, 2))
-    for e in range(idx.size):
-        for side in range(2):
-            direction[e, side] = edge_direction(du[e, side, 0], du[e, side, 1])
+    edge_directions(du, direction)
     return np.ascontiguousarray(length), np.ascontiguousarray(area), direction
+
+
+@njit(cache=True)
+def edge_directions(du, out):
+    """:func:`edge_direction` of every material edge vector du (..., 2), into out (...)."""
+    flat_du = du.reshape(-1, 2)
+    flat_out = out.reshape(-1)
+    for i in range(flat_out.shape[0]):
+        flat_out[i] = edge_direction(flat_du[i, 0], flat_du[i, 1])

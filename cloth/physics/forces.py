@@ -149,7 +149,9 @@ class MeasuredBending(Bending):
     """Hinge bending with ARCSim's per-edge stiffness of a measured material (cloth.physics.dde):
     each hinge's ke is read at its curvature and material direction at the start of each
     evaluation and held fixed in the derivatives, as ARCSim does; its weight is ARCSim's
-    w = ke l^2 / (4 (A_0 + A_1)) (`weight`, refreshed by every accumulate and by rebuild).
+    w = ke l^2 / (4 (A_0 + A_1)) (`weight`, refreshed by every accumulate and by rebuild). The
+    hinge's Hessian is the isotropic term's (exact at fixed w, projected where indefinite; ARCSim
+    keeps only its Gauss-Newton part w grad theta grad theta^T, cloth.physics.bending.GAUSS_NEWTON).
     """
 
     def __init__(self, material, project: bool = True):

@@ -8,9 +8,12 @@ and Green strain E = 1/2 (F^T F - I) (eq 9), written e = (E00, E11, E01),
 
 with k = (k0, k1, k2, k3) in N/m the material's stiffness at the strain e^
 (cloth.physics.dde.stretching_stiffness) and e^ the compensated strain below (e^ = e without
-compensation). The factor 2 on k3 makes this the potential of ARCSim's force (its
-``stretching_force`` has 2 k3 G01 grad G01); ARCSim's ``stretching_energy``, used only for its
-diagnostics, writes k3 G01^2 and so disagrees with its own force on shear.
+compensation, as in ARCSim; with it, the material sees e^ in place of e in its stiffness as in
+its energy: a face whose compression is compensated away is as stiff as an unstrained one).
+
+The factor 2 on k3 makes this the potential of ARCSim's force (its ``stretching_force`` has
+2 k3 G01 grad G01); ARCSim's ``stretching_energy``, used only for its diagnostics, writes
+k3 G01^2 and so disagrees with its own force on shear.
 
 Stiffness held fixed within a step. ARCSim evaluates k at the step's start and differentiates
 W with k held constant: the force is f = -dW/dx |_k and its Jacobian ignores dk/dx. So the
