@@ -42,7 +42,12 @@ stops as soon as every face is within its limits up to STRAIN_TOLERANCE,
 
     violation_f = max(sigma_f1 - s_max, s_min - sigma_f2, 0)   (a stretch, dimensionless),
 
-or after MAX_OUTER updates; the largest violation left is the stage's record. A face whose
+or after MAX_OUTER updates, or STALL_UPDATES updates in a row that found no smaller largest
+violation; the nodes then take the iterate with the smallest one, and that violation is the
+stage's record. (ARCSim stops after a fixed budget of 100 conjugate-gradient iterations and keeps
+the last iterate.) Lower limits can stall: a flat face compressed below s_min can gain stretch by
+buckling out of its plane only at second order, a direction no descent method sees from flat
+(nor does ARCSim's). A face whose
 lower stretch has collapsed (sigma_2 < COLLAPSED_STRETCH: its second singular vector is
 undefined) has no lower constraint on it. Faces that pinned nodes alone over-stretch (two
 handles further apart than s_max allows) cannot be satisfied and stay in the record, as in
@@ -70,9 +75,11 @@ MU_GROWTH = 4.0
 MU_MAX = 1e7
 # A multiplier update that leaves more than this fraction of the largest violation grows mu.
 VIOLATION_DECREASE = 0.25
-# Gauss-Newton steps per multiplier update, and multiplier updates allowed per step.
+# Newton steps per multiplier update, multiplier updates allowed per stage, and updates in a row
+# without a new smallest violation after which the stage gives up (and keeps its best iterate).
 INNER_STEPS = 3
 MAX_OUTER = 30
+STALL_UPDATES = 4
 # A bound within this stretch of being active keeps its Gauss-Newton term mu grad c grad c^T in
 # the step's matrix (not in L itself): otherwise a face that the last step brought just inside
 # its limit has no say in the model, whose step then undoes the last one (the line search would
@@ -278,8 +285,11 @@ def limit_strain(mesh: Mesh, pattern: SparsityPattern, s_min: float, s_max: floa
     slots = pattern.slots["faces"]
     zero = np.zeros_like(x)
     steps = 0
-    worst_now = worst
+    best_y, best = y, worst  # the iterate with the smallest largest violation so far
+    current = previous = worst
+    stalled = 0
     for _ in range(MAX_OUTER):
+        improved = False
         for _ in range(INNER_STEPS):
             L = _objective(y, x, weight, mesh, s_min, s_max, lam, mu, value, grad, hess)
             g = weight[:, None] * (y - x)
@@ -305,20 +315,22 @@ def limit_strain(mesh: Mesh, pattern: SparsityPattern, s_min: float, s_max: floa
                 step *= 0.5
             else:
                 break
-            y = y_new
+            y = y_new  # a new array: best_y may keep the old one
             steps += 1
-            worst_now = face_violation(y, mesh.face_nodes, mesh.face_Dm_inv, s_min, s_max, violation)
-            if worst_now <= tolerance:
+            current = face_violation(y, mesh.face_nodes, mesh.face_Dm_inv, s_min, s_max, violation)
+            if current < best:
+                best_y, best, improved = y, current, True
+            if current <= tolerance:
                 break
-        if worst_now <= tolerance:
-            worst = worst_now
+        if best <= tolerance:
+            break
+        stalled = 0 if improved else stalled + 1
+        if stalled >= STALL_UPDATES:
             break
         update_multipliers(y, mesh.face_nodes, mesh.face_Dm_inv, mesh.face_area, s_min, s_max, lam, mu)
-        before, worst = worst, face_violation(y, mesh.face_nodes, mesh.face_Dm_inv, s_min, s_max, violation)
-        if worst <= tolerance:
-            break
-        if worst > VIOLATION_DECREASE * before:
+        if current > VIOLATION_DECREASE * previous:
             mu = min(mu * MU_GROWTH, MU_MAX)
-    mesh.node_x[free] = y[free]
-    out.update(strain_limit_iterations=steps, strain_violation_max=worst)
+        previous = current
+    mesh.node_x[free] = best_y[free]
+    out.update(strain_limit_iterations=steps, strain_violation_max=best)
     return out
