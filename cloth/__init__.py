@@ -24,6 +24,7 @@ import importlib
 _EXPORTS = {
     "Mesh": "cloth.core.mesh", "MeshError": "cloth.core.mesh",
     "Material": "cloth.core.material", "MaterialError": "cloth.core.material",
+    "MeasuredMaterial": "cloth.core.measured", "load_arcsim_material": "cloth.core.measured",
     "Scene": "cloth.core.scene", "SceneError": "cloth.core.scene", "Handle": "cloth.core.scene",
     "Wind": "cloth.core.scene",
     "SolverOptions": "cloth.physics.linsolve", "BucklingParams": "cloth.physics.buckling",

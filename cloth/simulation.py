@@ -12,6 +12,8 @@ DESIGN.md section 1, one named stage per line::
     for each of the frame's steps:
         obstacle_contact   'obstacles': contact constraints for the solve (start of the step)
         implicit step      force terms of the declared effects, linear solve; handles prescribed
+        strain_limiting    'strain_limiting': principal stretches into the material's limits,
+                           v += dx / h (ARCSim's order: after physics, before collisions)
         obstacle_contact   'obstacles': projection out of the obstacles (end of the step)
         collisions         self_collision and/or obstacle_ccd (triangle-mesh obstacles, with a
                            thickness), one pass: proximity, CCD, impact zones
@@ -36,15 +38,34 @@ from cloth.collision.selfcollision import (
     resolve_self_collisions,
 )
 from cloth.collision.untangle import untangle
+from cloth.core.measured import MeasuredMaterial
 from cloth.core.mesh import Mesh
-from cloth.core.records import COLLISION_RECORD, PHASES, REMESH_RECORD, SIM_PHASES, VIEW_RECORD
+from cloth.core.records import (
+    COLLISION_RECORD,
+    PHASES,
+    REMESH_RECORD,
+    SIM_PHASES,
+    STRAIN_LIMIT_RECORD,
+    VIEW_RECORD,
+)
 from cloth.core.scene import Scene
 from cloth.core.transfer import transfer_node_values
 from cloth.physics.assembly import SparsityPattern
 from cloth.physics.buckling import compressive_energy, face_alpha
-from cloth.physics.forces import Bending, ForceTerm, Gravity, Membrane, Wind, element_families
+from cloth.physics.forces import (
+    Bending,
+    ForceTerm,
+    Gravity,
+    MeasuredBending,
+    MeasuredMembrane,
+    Membrane,
+    Wind,
+    element_families,
+)
 from cloth.physics.integrator import ContactConstraints, implicit_euler_step
 from cloth.physics.linsolve import SolverOptions, solve_capped
+from cloth.physics.measured_membrane import measured_compressive_energy
+from cloth.physics.strainlimiting import limit_strain
 from cloth.view.factors import face_geometry, face_view_data
 
 # A free node within (1 + CONTACT_BAND) x thickness of an obstacle at the start of a step is a
@@ -72,6 +93,7 @@ class Stages:
     obstacle_contact: bool = False  # node contact with every obstacle, in the solve and after it ('obstacles')
     obstacle_ccd: bool = False  # cloth against triangle-mesh obstacles: proximity, CCD, impact zones
     self_collision: bool = False  # cloth against itself: proximity, CCD, impact zones ('self_collision')
+    strain_limiting: bool = False  # principal stretches into the material's limits after each step
 
     def names(self) -> list[str]:
         """The planned stages, by name (force terms as 'force:<effect>'), for records and tests."""
@@ -92,7 +114,7 @@ def plan_stages(scene: Scene, remesher=None, buckling=None) -> Stages:
 
     Scene effects: membrane, bending, gravity, wind (force terms), damping, obstacles (node
     contact with every obstacle; with triangle-mesh obstacles and a thickness > 0, also their
-    triangles in the step's collision pass), self_collision. Mode: a remesher (remesh, and
+    triangles in the step's collision pass), self_collision, strain_limiting. Mode: a remesher (remesh, and
     untangling after it where crossings can arise), buckling parameters (buckling).
     """
     effects = scene.effects
@@ -109,17 +131,22 @@ def plan_stages(scene: Scene, remesher=None, buckling=None) -> Stages:
         obstacle_contact=obstacles,
         obstacle_ccd=meshes and scene.thickness > 0,
         self_collision=self_collision,
+        strain_limiting="strain_limiting" in effects,
     )
 
 
 def build_force_terms(scene: Scene) -> list[ForceTerm]:
-    """The force terms of the scene's declared effects, in a fixed order (built once)."""
+    """The force terms of the scene's declared effects, in a fixed order (built once).
+
+    The material's type chooses the elasticity: a Material gets the isotropic StVK membrane and
+    one bending stiffness, a MeasuredMaterial ARCSim's measured membrane and per-hinge bending."""
     terms: list[ForceTerm] = []
-    mu, lam = scene.material.lame()
+    material = scene.material
+    measured = isinstance(material, MeasuredMaterial)
     if "membrane" in scene.effects:
-        terms.append(Membrane(mu, lam))
+        terms.append(MeasuredMembrane(material) if measured else Membrane(*material.lame()))
     if "bending" in scene.effects:
-        terms.append(Bending(scene.material.bending_stiffness))
+        terms.append(MeasuredBending(material) if measured else Bending(material.bending_stiffness))
     if "gravity" in scene.effects:
         terms.append(Gravity(scene.gravity))
     if "wind" in scene.effects:
@@ -269,7 +296,7 @@ class Simulation:
         timings = {p: 0.0 for p in PHASES}
         stats = {"steps": 0, "solver_iterations": 0, "solver_iterations_max": 0, "solver_residual": 0.0,
                  "solves_capped": 0, "contacts": 0,
-                 **REMESH_RECORD, **VIEW_RECORD, **COLLISION_RECORD}
+                 **REMESH_RECORD, **VIEW_RECORD, **COLLISION_RECORD, **STRAIN_LIMIT_RECORD}
         stages = self.stages
         changed = stages.remesh and self.remesher.remesh(self, timings, stats)
         if stages.untangle and (changed or self.intersections_pending > 0):
@@ -304,6 +331,8 @@ class Simulation:
         y_start = self._mesh_obstacle_positions() if stages.obstacle_ccd else None
         contacts = self._timed(timings, "collisions", self._contact_constraints) if stages.obstacle_contact else None
         self._implicit_step(contacts, timings, stats)
+        if stages.strain_limiting:
+            self._timed(timings, "physics", self.limit_strain, stats)
         if stages.obstacle_contact:
             self._timed(timings, "collisions", self._project_contacts, stats)
         if collide:  # cloth-obstacle (with obstacle_ccd) and cloth-cloth collisions, in one pass
@@ -376,6 +405,17 @@ class Simulation:
         if solve_capped(self.solver, s.iterations, s.residual):
             stats["solves_capped"] += 1
         self.last_energy = s.energy
+
+    def limit_strain(self, stats: dict) -> None:
+        """Principal stretches of every face into the material's strain_limits, and v += dx / h
+        (cloth.physics.strainlimiting; ARCSim's strain limiting). Counts into `stats`."""
+        mesh = self.scene.mesh
+        s_min, s_max = self.scene.material.strain_limits
+        x_before = mesh.node_x.copy()
+        r = limit_strain(mesh, self.pattern, s_min, s_max)
+        mesh.node_v += (mesh.node_x - x_before) / self.dt
+        for key in STRAIN_LIMIT_RECORD:
+            stats[key] = max(stats[key], r[key])
 
     def _project_contacts(self, stats: dict) -> None:
         """Nodes out of the obstacles at the step's end, with friction (counts into `stats`)."""
@@ -473,12 +513,21 @@ class Simulation:
         c, n = face_geometry(self.scene.mesh)
         d, front = face_view_data(self.scene.camera.camera_at(self.time), c, n)
         inside = d == 0
-        mu, lam = self.scene.material.lame()
         return {"faces_in_view": int(np.count_nonzero(inside & front)),
                 "faces_back_facing": int(np.count_nonzero(inside & ~front)),
                 "faces_out_of_frame": int(np.count_nonzero(~inside)),
                 "faces_compensated": self.faces_compensated if self.buckling is not None else 0,
-                "compressive_energy_out_j": compressive_energy(self.scene.mesh, mu, lam, np.flatnonzero(~inside))}
+                "compressive_energy_out_j": self.compressive_energy(np.flatnonzero(~inside))}
+
+    def compressive_energy(self, faces: np.ndarray) -> float:
+        """J: the membrane energy of the compressive principal strains of `faces` (what buckling
+        compensation removes), for either material type."""
+        mesh, material = self.scene.mesh, self.scene.material
+        if isinstance(material, MeasuredMaterial):
+            return float(measured_compressive_energy(mesh.node_x, mesh.face_nodes, mesh.face_Dm_inv, mesh.face_area,
+                                                     material.stretching_samples, np.asarray(faces, dtype=np.int64)))
+        mu, lam = material.lame()
+        return compressive_energy(mesh, mu, lam, faces)
 
     def state_record(self) -> dict:
         """Counts, energies and quality of the current state."""

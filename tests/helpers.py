@@ -9,7 +9,8 @@ are in tests/conftest.py). A test module imports what it needs from here (`from 
   new process), `write_run` (a run folder made by hand: what aggregation reads);
 - checks: `after_every_step` (a check after each step of a simulation), `count_crossings`,
   `material_edge_lengths`;
-- small scenes: `COTTON`, `two_sheets`.
+- small scenes: `COTTON`, `two_sheets`;
+- measured materials: `MEASURED_JSON`, `write_material` (a small material file in ARCSim's format).
 """
 
 from __future__ import annotations
@@ -201,3 +202,30 @@ def run_module(*args: str, env: dict | None = None, timeout: float = 600) -> sub
             full_env[key] = value
     return subprocess.run([sys.executable, "-m", *args], cwd=ROOT, env=full_env, capture_output=True, text=True,
                           timeout=timeout)
+
+
+# ---- measured materials ------------------------------------------------------------------
+
+# A made-up material in ARCSim's format (no ARCSim file is in the repository: it is not ours to
+# copy). Stretching rows: zero strain, then a stretch of 1 + 1/6 at 0, 22.5, 45, 67.5, 90 degrees
+# (N/m, before ARCSim doubles them); row 0's k1 < 0 is clamped to 0 by the table. Bending rows:
+# edges at 0, 45, 90 degrees; columns: curvatures 0, 10, 20, 30, 40 1/m (N m).
+MEASURED_JSON = {
+    "density": 0.2,
+    "stretching": [[20.0, -5.0, 40.0, 30.0],
+                   [60.0, 40.0, 200.0, 20.0],
+                   [55.0, 45.0, 180.0, 25.0],
+                   [50.0, 50.0, 160.0, 30.0],
+                   [45.0, 45.0, 150.0, 25.0],
+                   [40.0, 40.0, 140.0, 20.0]],
+    "bending": [[2.0e-5, 3.0e-5, 3.5e-5, 4.0e-5, 4.2e-5],
+                [1.5e-5, 2.0e-5, 2.5e-5, 2.8e-5, 3.0e-5],
+                [1.0e-5, 1.2e-5, 1.6e-5, 2.0e-5, 2.2e-5]],
+}
+
+
+def write_material(path: Path, data: dict | None = None, text: str | None = None) -> Path:
+    """Write a material file (`data` as JSON, MEASURED_JSON by default, or `text` as it is) to `path`."""
+    path = Path(path)
+    path.write_text(text if text is not None else json.dumps(MEASURED_JSON if data is None else data))
+    return path

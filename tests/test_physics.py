@@ -201,7 +201,14 @@ def test_forces_without_stiffness_match_the_assembled_forces():
     mesh.update_rest_data(0.1)
     mesh.node_x[:, :2] *= 0.8  # compressed: the membrane and bending Hessians need projection
     mesh.node_x += 0.03 * rng.standard_normal(mesh.node_x.shape)
-    terms = [Membrane(*COTTON.lame()), Bending(1e-3), Gravity((0.0, 0.0, -9.81))]
+    from cloth.core.measured import MeasuredMaterial
+    from cloth.physics.forces import MeasuredBending, MeasuredMembrane
+
+    knit = MeasuredMaterial("knit", 0.2, np.array([[40.0 + 5 * i, 10.0 + i, 60.0 + 4 * i, 15.0 + 2 * i]
+                                                   for i in range(6)]),
+                            np.array([[20e-6 + 1e-6 * j + 2e-6 * i for j in range(5)] for i in range(3)]))
+    terms = [Membrane(*COTTON.lame()), Bending(1e-3), Gravity((0.0, 0.0, -9.81)), MeasuredMembrane(knit),
+             MeasuredBending(knit)]
     pattern = SparsityPattern(mesh.n_nodes, element_families(mesh, terms))
     for term in terms:
         term.rebuild(mesh, pattern)

@@ -39,5 +39,10 @@ OBSTACLE_RECORD = {"obstacle_proximity": 0, "obstacle_ccd_hits": 0, "obstacle_co
 UNTANGLE_RECORD = {"intersections_found": 0, "untangle_iterations": 0, "intersections_left": 0,
                    "intersection_depth_m": 0.0, "intersection_length_m": 0.0}
 
+# Strain limiting after each step (cloth.physics.strainlimiting), the frame's worst step: its
+# Newton steps and the largest violation it left (a principal stretch beyond the material's
+# strain_limits, dimensionless). Zero in scenes without the effect.
+STRAIN_LIMIT_RECORD = {"strain_limit_iterations": 0, "strain_violation_max": 0.0}
+
 # The frame's collision columns: zero in scenes without the effects.
 COLLISION_RECORD = {"self_velocity_clamped": 0, **SELF_COLLISION_RECORD, **OBSTACLE_RECORD, **UNTANGLE_RECORD}

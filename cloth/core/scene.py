@@ -10,13 +10,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cloth.core.material import Material
+from cloth.core.material import Material, MaterialError
+from cloth.core.measured import MeasuredMaterial, check_strain_limits
 from cloth.core.mesh import Mesh
 
 # Effects a scene can declare. membrane and bending are the cloth's own elasticity; the rest act on it.
 # self_collision: cloth-cloth contact (proximity, continuous collision detection, impact zones)
 # in every step and, in the adaptive modes, untangling of crossings after each remesh.
-KNOWN_EFFECTS = frozenset({"membrane", "bending", "gravity", "wind", "damping", "obstacles", "self_collision"})
+# strain_limiting: after each implicit step, every face's principal stretches are brought within
+# the material's strain_limits (cloth.physics.strainlimiting; a MeasuredMaterial's key).
+KNOWN_EFFECTS = frozenset({"membrane", "bending", "gravity", "wind", "damping", "obstacles", "self_collision",
+                           "strain_limiting"})
 
 
 class SceneError(ValueError):
@@ -71,7 +75,7 @@ class Wind:
 class Scene:
     name: str
     mesh: Mesh
-    material: Material
+    material: Material | MeasuredMaterial  # isotropic (StVK, one bending stiffness) or ARCSim's measured
     effects: frozenset
     frame_time: float  # s, duration of one output frame
     steps_per_frame: int  # implicit steps per frame
@@ -103,6 +107,18 @@ class Scene:
             raise SceneError(f"scene {self.name!r}: effect 'wind' and the wind settings must come together")
         if ("obstacles" in self.effects) != bool(self.obstacles):
             raise SceneError(f"scene {self.name!r}: effect 'obstacles' and the obstacle list must come together")
+        limits = getattr(self.material, "strain_limits", None)
+        if "strain_limiting" in self.effects and limits is None:
+            raise SceneError(f"scene {self.name!r}: effect 'strain_limiting' is declared but material "
+                             f"{self.material.name!r} has no strain_limits")
+        if limits is not None and "strain_limiting" not in self.effects:
+            raise SceneError(f"scene {self.name!r}: material {self.material.name!r} has strain_limits = {limits} "
+                             f"but the scene does not declare the effect 'strain_limiting'")
+        if limits is not None:
+            try:
+                check_strain_limits(limits, f"scene {self.name!r}")
+            except MaterialError as e:
+                raise SceneError(str(e)) from None
         if self.thickness < 0 or self.friction < 0:
             raise SceneError(f"scene {self.name!r}: thickness and friction must be >= 0")
         self.mesh.update_rest_data(self.material.density)

@@ -22,6 +22,8 @@ from numba import njit
 from cloth.core.mesh import Mesh
 from cloth.physics.assembly import SparsityPattern, scatter_blocks, scatter_forces
 from cloth.physics.bending import GAUSS_NEWTON, bending_elements, hinge_weight
+from cloth.physics.dde import hinge_rest_data, hinge_stiffness
+from cloth.physics.measured_membrane import measured_membrane_elements
 from cloth.physics.membrane import membrane_elements
 
 
@@ -81,6 +83,11 @@ class Membrane(ForceTerm):
         self.energy, self.grad, self.hess = np.zeros(F), np.zeros((F, 9)), np.empty((F, 9, 9))
         self.alpha = np.ones(F)
 
+    def elements(self, node_x, face_nodes, face_Dm_inv, face_area, face_alpha, out_energy, out_grad, out_hess):
+        """Energy, gradient and Hessian of the given faces (the pop filter's region; writes the outs)."""
+        membrane_elements(node_x, face_nodes, face_Dm_inv, face_area, self.mu, self.lam, self.project,
+                          out_energy, out_grad, out_hess, face_alpha)
+
     def accumulate(self, mesh, t, acc):
         membrane_elements(mesh.node_x, mesh.face_nodes, mesh.face_Dm_inv, mesh.face_area,
                           self.mu, self.lam, self.project, self.energy, self.grad, self.hess, self.alpha)
@@ -92,6 +99,42 @@ class Membrane(ForceTerm):
         # the Hessian unprojected: the projection's eigensolves are the costly part, and unused here
         membrane_elements(mesh.node_x, mesh.face_nodes, mesh.face_Dm_inv, mesh.face_area,
                           self.mu, self.lam, False, self.energy, self.grad, self.hess, self.alpha)
+        scatter_forces(force, mesh.face_nodes, self.grad, -1.0)
+
+
+class MeasuredMembrane(Membrane):
+    """ARCSim's anisotropic membrane of a measured material (cloth.physics.measured_membrane):
+    each face's stiffness is read from the material's table at its strain at the start of each
+    evaluation and held fixed in its derivatives, as ARCSim does.
+
+    `alpha` as Membrane's (buckling compensation). `face_k` (F, 4) N/m holds the stiffness of
+    the last evaluation.
+    """
+
+    def __init__(self, material, project: bool = True):
+        self.samples = np.ascontiguousarray(material.stretching_samples)  # (30, 30, 30, 4) N/m
+        self.project = bool(project)
+
+    def rebuild(self, mesh, pattern):
+        super().rebuild(mesh, pattern)
+        self.face_k = np.zeros((mesh.n_faces, 4))
+
+    def elements(self, node_x, face_nodes, face_Dm_inv, face_area, face_alpha, out_energy, out_grad, out_hess):
+        k = np.empty((face_nodes.shape[0], 4))
+        measured_membrane_elements(node_x, face_nodes, face_Dm_inv, face_area, self.samples, self.project,
+                                   out_energy, out_grad, out_hess, face_alpha, k)
+
+    def accumulate(self, mesh, t, acc):
+        measured_membrane_elements(mesh.node_x, mesh.face_nodes, mesh.face_Dm_inv, mesh.face_area, self.samples,
+                                   self.project, self.energy, self.grad, self.hess, self.alpha, self.face_k)
+        scatter_forces(acc.force, mesh.face_nodes, self.grad, -1.0)
+        scatter_blocks(acc.K, self.slots, self.hess, 1.0)
+        acc.energy[self.name] = float(self.energy.sum())
+
+    def add_forces(self, mesh, t, pattern, force):
+        # as Membrane.add_forces: the Hessian unprojected, unused
+        measured_membrane_elements(mesh.node_x, mesh.face_nodes, mesh.face_Dm_inv, mesh.face_area, self.samples,
+                                   False, self.energy, self.grad, self.hess, self.alpha, self.face_k)
         scatter_forces(force, mesh.face_nodes, self.grad, -1.0)
 
 
@@ -128,6 +171,43 @@ class Bending(ForceTerm):
         bending_elements(mesh.node_x, self.stencil, self.rest_theta, self.weight, GAUSS_NEWTON,
                          self.energy, self.grad, self.hess)
         scatter_forces(force, self.stencil, self.grad, -1.0)
+
+
+class MeasuredBending(Bending):
+    """Hinge bending with ARCSim's per-edge stiffness of a measured material (cloth.physics.dde):
+    each hinge's ke is read at its curvature and material direction at the start of each
+    evaluation and held fixed in the derivatives, as ARCSim does; its weight is ARCSim's
+    w = ke l^2 / (4 (A_0 + A_1)) (`weight`, refreshed by every accumulate and by rebuild). The
+    hinge's Hessian is the isotropic term's (exact at fixed w, projected where indefinite; ARCSim
+    keeps only its Gauss-Newton part w grad theta grad theta^T, cloth.physics.bending.GAUSS_NEWTON).
+    """
+
+    def __init__(self, material, project: bool = True):
+        self.bending_samples = np.ascontiguousarray(material.bending)  # (3, 5) N m
+        self.project = bool(project)
+
+    def rebuild(self, mesh, pattern):
+        self.stencil = mesh.edge_stencil()
+        self.slots = pattern.slots["hinges"]
+        self.rest_theta = np.ascontiguousarray(mesh.edge_rest_theta[mesh.bending_edges])
+        self.length, self.area_sum, self.direction = hinge_rest_data(mesh)
+        E = self.stencil.shape[0]
+        self.ke, self.weight = np.zeros(E), np.zeros(E)
+        self.energy, self.grad, self.hess = np.zeros(E), np.zeros((E, 12)), np.empty((E, 12, 12))
+        self.update_stiffness(mesh.node_x)
+
+    def update_stiffness(self, node_x):
+        """ke (E,) N m and weight (E,) N m of every hinge at the positions `node_x` (into self)."""
+        hinge_stiffness(node_x, self.stencil, self.length, self.area_sum, self.direction, self.bending_samples,
+                        self.ke, self.weight)
+
+    def accumulate(self, mesh, t, acc):
+        self.update_stiffness(mesh.node_x)
+        super().accumulate(mesh, t, acc)
+
+    def add_forces(self, mesh, t, pattern, force):
+        self.update_stiffness(mesh.node_x)
+        super().add_forces(mesh, t, pattern, force)
 
 
 class Gravity(ForceTerm):

@@ -27,7 +27,6 @@ from cloth.physics.assembly import SparsityPattern, apply_dirichlet, scatter_blo
 from cloth.physics.bending import GAUSS_NEWTON, bending_elements
 from cloth.physics.forces import ForceTerm
 from cloth.physics.linsolve import SolverOptions, solve
-from cloth.physics.membrane import membrane_elements
 
 
 @dataclass(frozen=True)
@@ -101,8 +100,7 @@ class _Region:
         F = self.face_nodes.shape[0]
         if self.membrane is not None and F:
             e, g, H = np.empty(F), np.empty((F, 9)), np.empty((F, 9, 9))
-            m = self.membrane
-            membrane_elements(x, self.face_nodes, self.Dm_inv, self.area, m.mu, m.lam, m.project, e, g, H, self.alpha)
+            self.membrane.elements(x, self.face_nodes, self.Dm_inv, self.area, self.alpha, e, g, H)
             scatter_forces(force, self.face_nodes, g, -1.0)
             scatter_blocks(K, self.pattern.slots["faces"], H, 1.0)
             energy += float(e.sum())
