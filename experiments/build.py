@@ -21,6 +21,7 @@ from cloth.remeshing.adaptive import AdaptiveRemesher
 from cloth.remeshing.popfilter import PopFilterParams
 from cloth.remeshing.remesh import RemeshParams
 from cloth.remeshing.sizing import SizingParams
+from cloth.scenes.arcsim import arcsim_end_frames, arcsim_remesher_overrides
 from cloth.scenes.registry import CROWDS, SCENES, build_scene, crowd_columns, crowd_placement, multiple_dancers
 from cloth.simulation import Simulation
 from cloth.view.camera import ViewError
@@ -242,8 +243,11 @@ def build_simulation(cfg: DictConfig, character: int | None = None):
 
     For a crowd scene (cloth.scenes.registry.CROWDS) this is the simulation of one `character` (0 if None).
     """
-    _require(isinstance(cfg.get("frames"), int) and cfg.frames >= 1, "frames",
-             f"must be an integer >= 1, got {cfg.get('frames')!r}")
+    n_frames = cfg.get("frames")
+    if n_frames is None and cfg.scene.name == "arcsim":  # the ARCSim conf's own end
+        n_frames = _arcsim_frames(cfg)
+    _require(isinstance(n_frames, int) and not isinstance(n_frames, bool) and n_frames >= 1, "frames",
+             f"must be an integer >= 1, got {n_frames!r}")
     _require(isinstance(cfg.get("seed"), int), "seed", f"must be an integer, got {cfg.get('seed')!r}")
     _require(cfg.get("max_speed", 0) > 0, "max_speed", f"must be > 0 m/s, got {cfg.get('max_speed')!r}")
     mode = cfg.mode.name
@@ -263,6 +267,9 @@ def build_simulation(cfg: DictConfig, character: int | None = None):
                  f"scene {name!r} has no reference preset at scale {cfg.scale!r} (scene.scales.{cfg.scale}.reference)")
         params.update(reference)
     sizing_overrides = params.pop("sizing", None) or {}
+    pop_filter = True
+    if name == "arcsim":
+        sizing_overrides, pop_filter = _arcsim_mode(cfg, params, mode, sizing_overrides)
     factor = cfg.get("resolution_factor", 1.0)
     _require(isinstance(factor, (int, float)) and not isinstance(factor, bool) and factor > 0, "resolution_factor",
              f"must be a number > 0, got {factor!r}")
@@ -314,5 +321,36 @@ def build_simulation(cfg: DictConfig, character: int | None = None):
     scene_view = OmegaConf.to_container(scene_view, resolve=True) if scene_view is not None else None
     remesher = (build_remesher(cfg.mode, sizing_overrides, camera, scene.frame_time, scene_view)
                 if mode in REMESHING_MODES else None)
+    if remesher is not None and not pop_filter:
+        remesher.pop = None
     return (Simulation(scene, solver=solver, remesher=remesher, max_speed=float(cfg.max_speed), buckling=buckling),
-            int(cfg.frames))
+            int(n_frames))
+
+
+def _arcsim_frames(cfg: DictConfig) -> int:
+    """frames=null with scene=arcsim: the conf's end_frame, or its end time in frames."""
+    params = OmegaConf.to_container(cfg.scene.params, resolve=True)
+    try:
+        n = arcsim_end_frames(params.get("conf"), params.get("root"))
+    except SceneError as exc:
+        raise ConfigError(f"scene: {exc}") from None
+    _require(n is not None, "frames", f"the ARCSim conf {params.get('conf')} has no end: give frames=N")
+    return n
+
+
+def _arcsim_mode(cfg: DictConfig, params: dict, mode: str, scale_sizing: dict) -> tuple[dict, bool]:
+    """An ARCSim scene's part in the mode: the conf's remeshing sizes (x the scale's size_factor)
+    as sizing overrides, its fixed mesh for mode=nonadaptive, and whether it keeps the pop filter."""
+    factor = params.get("size_factor", 1.0)
+    _require(isinstance(factor, (int, float)) and factor > 0, "scene.params.size_factor",
+             f"must be > 0, got {factor!r}")
+    try:
+        wants = arcsim_remesher_overrides(params.get("conf"), params.get("root"), float(factor))
+    except SceneError as exc:
+        raise ConfigError(f"scene: {exc}") from None
+    if mode in REMESHING_MODES:
+        _require(wants["remeshing"], "mode", f"the ARCSim conf {params.get('conf')} disables remeshing: "
+                                             "run it with mode=nonadaptive")
+    else:
+        params["mode_mesh"] = "uniform"
+    return {**wants["sizing"], **scale_sizing}, wants["pop_filter"]

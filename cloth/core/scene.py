@@ -84,7 +84,8 @@ class Scene:
     obstacles: list = field(default_factory=list)  # cloth.collision.obstacles.Obstacle instances
     handles: list = field(default_factory=list)  # Handle instances
     thickness: float = 0.005  # m, contact offset kept between cloth and obstacles, and between cloth layers
-    friction: float = 0.3  # Coulomb coefficient, cloth against obstacles and against itself
+    friction: float = 0.3  # Coulomb coefficient, cloth against obstacles (and against itself unless self_friction)
+    self_friction: float | None = None  # Coulomb coefficient, cloth against cloth; None: `friction`
     camera: object | None = None  # a camera path (view-dependent issue), None if the scene has none
     notes: tuple = ()  # what a reader of the results must know (e.g. an effect the scene leaves out)
     # Per-frame measures the scene declares: callables mesh -> {column: value}, added to every
@@ -119,8 +120,8 @@ class Scene:
                 check_strain_limits(limits, f"scene {self.name!r}")
             except MaterialError as e:
                 raise SceneError(str(e)) from None
-        if self.thickness < 0 or self.friction < 0:
-            raise SceneError(f"scene {self.name!r}: thickness and friction must be >= 0")
+        if self.thickness < 0 or self.friction < 0 or (self.self_friction is not None and self.self_friction < 0):
+            raise SceneError(f"scene {self.name!r}: thickness, friction and self_friction must be >= 0")
         self.mesh.update_rest_data(self.material.density)
         for handle in self.handles:
             if not handle.end_time > 0:

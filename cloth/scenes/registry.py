@@ -20,6 +20,7 @@ from cloth.core.mesh import MeshError, grid_mesh, merge_meshes
 from cloth.core.scene import Handle, Scene, SceneError, Wind
 from cloth.eval.drape import DrapeProbe
 from cloth.io.obj import ObjError, load_obj_sequence
+from cloth.scenes.arcsim import arcsim_scene
 from cloth.scenes.bodies import moving_sphere_keyframes, skinned_mannequin_mesh
 from cloth.scenes.character import JOINTS, Dance, Karate, Mannequin
 from cloth.scenes.garments import circle_skirt, merge_garments, obj_garment, tube_skirt, uniform_annulus_mesh
@@ -499,7 +500,7 @@ CROWDS = {"multiple_dancers"}  # scenes whose builder makes one character of a c
 SCENES = {"hanging_sheet": hanging_sheet, "sheet_on_sphere": sheet_on_sphere, "flag": flag,
           "solo_dancer": solo_dancer, "karate": karate, "multiple_dancers": multiple_dancers,
           "layered_sheets": layered_sheets, "crushed_sheet": crushed_sheet, "mesh_obstacle": mesh_obstacle,
-          "cusick_drape": cusick_drape}
+          "cusick_drape": cusick_drape, "arcsim": arcsim_scene}
 
 
 def build_scene(name: str, material: Material, **params) -> Scene:
