@@ -89,7 +89,7 @@ def test_the_scene_is_what_the_conf_says(tmp_path):
         phi, _, _ = ob.query(np.array([[0.0, centre_y, 0.5]]))
         assert phi[0] == pytest.approx(0.5 - 0.12, abs=0.12 * 0.05)  # facets of a level-2 icosphere
     sizing = arcsim_remesher_overrides(str(conf), size_factor=2.0)["sizing"]
-    assert sizing["size_min"] == pytest.approx(0.1) and sizing["size_max"] == pytest.approx(0.6)
+    assert sizing["size_min"] == pytest.approx(0.1) and sizing["size_max"] == pytest.approx(0.3)
     assert sizing["refine_angle"] == 0.3 and sizing["aspect_min"] == 0.2
 
 
@@ -155,6 +155,7 @@ def test_five_frames_of_a_constructed_scene_in_each_mode(tmp_path, mode):
     camera = ("camera=fixed", "camera.position=[1.2,-1.2,0.9]", "camera.target=[0,0,0.2]")
     out = tmp_path / f"run_{mode}"
     summary = run_config(out, "scene=arcsim", f"scene.params.conf={conf}", f"mode={mode}", "scale=paper",
+                         "output.states_every=1", "output.checkpoint_every=2",  # the scene pickles
                          *(camera if mode == "viewdep" else ()), *QUIET)
     assert summary["frames_completed"] == 5
     frames = read_frames(out)
@@ -167,3 +168,25 @@ def test_five_frames_of_a_constructed_scene_in_each_mode(tmp_path, mode):
         assert _min_obstacle_distance(scene, state["node_x"], float(state["time"])) > -CONTACT_SLACK_M
     last = load_state(paths[-1])
     assert not np.any(last["node_pinned"])  # released at its end_time
+
+
+def test_a_fast_obstacle_gets_substeps_so_that_it_moves_at_most_half_the_thickness_per_step(tmp_path):
+    """Two keys 1 s apart with zero end tangents (ARCSim's Hermite): the ball's speed is
+    1.9 m x (6 t - 6 t^2), 2.85 m/s at t = 0.5 s; over a 0.04 s frame that is 0.114 m, 45.6 half
+    thicknesses (2.5 mm): 46 steps instead of the conf's 4. The first frame's fastest sample is its
+    end, 1.9 (6 0.04 - 6 0.04^2) = 0.438 m/s: 7.004 half thicknesses, 8 steps; a ball at rest
+    keeps the conf's 4."""
+    from cloth.simulation import Simulation
+
+    motions = [[{"time": 0, "transform": {"scale": 0.12}},
+                {"time": 1, "transform": {"scale": 0.12, "translate": [0, 1.9, 0]}}]]
+    scene = arcsim_scene(conf=str(_write_scene(tmp_path, motions=motions)))
+    assert scene.obstacle_step == 0.5
+    sim = Simulation(scene)
+    sim.time = 0.5
+    assert sim.obstacle_steps() == 46
+    sim.time = 0.0
+    assert sim.advance_frame()["steps"] == 8
+    still = [[{"time": 0, "transform": {"scale": 0.12}}, {"time": 1, "transform": {"scale": 0.12}}]]
+    sim = Simulation(arcsim_scene(conf=str(_write_scene(tmp_path, motions=still))))
+    assert sim.obstacle_steps() == 1 and sim.advance_frame()["steps"] == 4

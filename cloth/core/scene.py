@@ -86,6 +86,9 @@ class Scene:
     thickness: float = 0.005  # m, contact offset kept between cloth and obstacles, and between cloth layers
     friction: float = 0.3  # Coulomb coefficient, cloth against obstacles (and against itself unless self_friction)
     self_friction: float | None = None  # Coulomb coefficient, cloth against cloth; None: `friction`
+    # Substeps for fast obstacles: a frame takes enough steps that no triangle-mesh obstacle vertex
+    # moves more than this fraction of `thickness` in one step (at least steps_per_frame); None: off.
+    obstacle_step: float | None = None
     camera: object | None = None  # a camera path (view-dependent issue), None if the scene has none
     notes: tuple = ()  # what a reader of the results must know (e.g. an effect the scene leaves out)
     # Per-frame measures the scene declares: callables mesh -> {column: value}, added to every
@@ -120,6 +123,8 @@ class Scene:
                 check_strain_limits(limits, f"scene {self.name!r}")
             except MaterialError as e:
                 raise SceneError(str(e)) from None
+        if self.obstacle_step is not None and not self.obstacle_step > 0:
+            raise SceneError(f"scene {self.name!r}: obstacle_step must be > 0 (a fraction of the thickness) or None")
         if self.thickness < 0 or self.friction < 0 or (self.self_friction is not None and self.self_friction < 0):
             raise SceneError(f"scene {self.name!r}: thickness, friction and self_friction must be >= 0")
         self.mesh.update_rest_data(self.material.density)
