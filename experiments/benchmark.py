@@ -5,7 +5,7 @@
     python -m experiments.benchmark --modes [--scene sheet_on_sphere] [--camera sheet_half]
                                     [--frames 20] [--warmup 10] [--out DIR]
 
-`--modes` times the three modes on one scene (Hydra's config, `scale=small`) at matched mean
+`--modes` times the three modes on one scene (Hydra's config, `--scale`, small by default) at matched mean
 faces: mode=adaptive runs first, and the fixed mesh's resolution_factor is set so that its faces
 equal adaptive's mean; mode=viewdep runs with `--camera`. It prints and writes (`modes.csv`)
 microseconds per face per step of every phase (sizing, remeshing with its pop filter, physics,
@@ -135,8 +135,9 @@ def mode_row(mode: str, df: pd.DataFrame) -> dict:
     return row
 
 
-def bench_modes(scene: str, camera: str, frames: int, warmup: int, extra: list[str]) -> pd.DataFrame:
-    base = [f"scene={scene}", "scale=small", *extra]
+def bench_modes(scene: str, camera: str, frames: int, warmup: int, extra: list[str],
+                scale: str = "small") -> pd.DataFrame:
+    base = [f"scene={scene}", f"scale={scale}", *extra]
     probe = _time_mode([*base, "mode=nonadaptive"], 1, 0)  # the preset's fixed mesh: faces at factor 1
     adaptive = _time_mode([*base, "mode=adaptive"], frames, warmup)
     factor = float(np.sqrt(adaptive["faces"].mean() / probe["faces"].iloc[0]))
@@ -160,6 +161,7 @@ def main(argv=None) -> None:
     parser.add_argument("--modes", action="store_true", help="the three modes at matched mean faces, per phase")
     parser.add_argument("--scene", default="sheet_on_sphere", help="--modes: the scene (conf/scene/)")
     parser.add_argument("--camera", default="sheet_half", help="--modes: mode=viewdep's camera (conf/camera/)")
+    parser.add_argument("--scale", default="small", choices=("small", "paper"), help="--modes: the scene's preset")
     parser.add_argument("overrides", nargs="*", help="--modes: more config overrides (key=value)")
     args = parser.parse_args(argv)
     solver = SolverOptions(method=args.solver)  # a method that cannot run here stops before any work
@@ -175,14 +177,15 @@ def main(argv=None) -> None:
     out_dir = args.out / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     out_dir.mkdir(parents=True, exist_ok=True)
     if args.modes:
-        df = bench_modes(args.scene, args.camera, frames, warmup, [f"solver={args.solver}", *args.overrides])
+        df = bench_modes(args.scene, args.camera, frames, warmup, [f"solver={args.solver}", *args.overrides],
+                         args.scale)
         write_text_atomic(out_dir / "modes.csv", df.to_csv(index=False))
         phases = [f"{p}_us_per_face_step" for p in SIM_PHASES]
         print(df[["mode", "faces_mean", "s_per_frame", *phases, "us_per_face_step"]].to_string(
             index=False, float_format=lambda v: f"{v:.2f}"))
         ratio = df["us_per_face_step"].iloc[1] / df["us_per_face_step"].iloc[0]
         frame_ratio = df["s_per_frame"].iloc[1] / df["s_per_frame"].iloc[0]
-        summary = {"scene": args.scene, "resolution_factor": df.attrs["resolution_factor"],
+        summary = {"scene": args.scene, "scale": args.scale, "resolution_factor": df.attrs["resolution_factor"],
                    "adaptive_over_fixed_frame_time": frame_ratio, "adaptive_over_fixed_per_face": ratio,
                    "rows": df.to_dict("records"), "manifest": environment_manifest(0)}
         write_json_atomic(out_dir / "summary.json", summary)
