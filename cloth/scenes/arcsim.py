@@ -85,6 +85,8 @@ MAGIC_NOTED = {
 
 
 def _load(conf, root) -> ArcsimConfig:
+    if conf is None:
+        raise SceneError("scene 'arcsim': scene.params.conf is required: the path of an ARCSim .json config")
     try:
         return load_arcsim_config(conf, root)
     except ArcsimConfigError as exc:
