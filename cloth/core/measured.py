@@ -54,13 +54,13 @@ from __future__ import annotations
 
 import json
 import math
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from numba import njit
 
+from cloth.core.jsonc import strip_json_comments
 from cloth.core.material import MaterialError
 
 # ARCSim's grid of tabulated Green strains: STRETCH_SAMPLES per axis, the diagonal axes from
@@ -205,16 +205,6 @@ def check_strain_limits(limits, where: str = "strain_limits") -> tuple[float, fl
     return lo, hi
 
 
-# A JSON string, or a comment (// to the end of the line, or /* ... */) outside strings.
-_JSON_TOKEN = re.compile(r'"(?:\\.|[^"\\])*"|//[^\n]*|/\*.*?\*/', re.S)
-
-
-def strip_json_comments(text: str) -> str:
-    """`text` without // and /* */ comments (ARCSim's JSON reader, jsoncpp, accepts them: the
-    aluminium and paper files of ARCSim open with comments); strings are left as they are."""
-    return _JSON_TOKEN.sub(lambda m: m.group(0) if m.group(0).startswith('"') else "", text)
-
-
 def load_arcsim_material(path, *, thicken: float = 1.0, density_mult: float = 1.0, stretching_mult: float = 1.0,
                          bending_mult: float = 1.0, strain_limits=None, name: str | None = None,
                          damping: float = 0.0) -> MeasuredMaterial:
@@ -235,7 +225,7 @@ def load_arcsim_material(path, *, thicken: float = 1.0, density_mult: float = 1.
         raise MaterialError("path", f"cannot read material file {where}: {e}") from None
     try:
         data = json.loads(strip_json_comments(text))
-    except json.JSONDecodeError as e:
+    except ValueError as e:  # json.JSONDecodeError, or a /* comment never closed
         raise MaterialError("path", f"{where} is not valid JSON: {e}") from None
     if not isinstance(data, dict):
         raise MaterialError("path", f"{where}: expected a JSON object with density, stretching and bending")

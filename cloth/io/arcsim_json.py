@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from cloth.core.jsonc import strip_json_comments
+
 
 class ArcsimConfigError(ValueError):
     """A config (or a file it refers to) this reader cannot turn into plain data.
@@ -42,44 +44,7 @@ class ArcsimConfigError(ValueError):
         self.path = Path(path) if path is not None else None
 
 
-# ---- JSON with comments -------------------------------------------------------------------------
-
-def strip_json_comments(text: str) -> str:
-    """`text` with every ``//`` and ``/* */`` comment outside strings replaced by spaces (newlines
-    kept), so the result has the same length, lines and columns. A ``/*`` without its ``*/``
-    raises ValueError naming the line and column where it starts."""
-    out = list(text)
-    i, n = 0, len(text)
-    in_string = False
-    while i < n:
-        c = text[i]
-        if in_string:
-            if c == "\\":
-                i += 2  # an escape: the next character cannot end the string
-                continue
-            if c == '"':
-                in_string = False
-        elif c == '"':
-            in_string = True
-        elif c == "/" and i + 1 < n and text[i + 1] == "/":
-            while i < n and text[i] != "\n":
-                out[i] = " "
-                i += 1
-            continue
-        elif c == "/" and i + 1 < n and text[i + 1] == "*":
-            end = text.find("*/", i + 2)
-            if end < 0:
-                line = text.count("\n", 0, i) + 1
-                col = i - (text.rfind("\n", 0, i) + 1) + 1
-                raise ValueError(f"line {line} column {col}: a /* comment is never closed")
-            for j in range(i, end + 2):
-                if text[j] != "\n":
-                    out[j] = " "
-            i = end + 2
-            continue
-        i += 1
-    return "".join(out)
-
+# ---- JSON with comments (cloth.core.jsonc.strip_json_comments) ------------------------------------
 
 class _DuplicateKey(Exception):
     def __init__(self, name: str):

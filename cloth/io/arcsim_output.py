@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cloth.core.jsonc import strip_json_comments
 from cloth.io.obj import read_obj
 
 FRAME_FILE = re.compile(r"(\d{4})_(\d{2})\.obj")  # NNNN_CC.obj: frame, cloth
@@ -148,40 +149,11 @@ def read_timing(path, last_frame: int | None = None) -> ArcsimTiming:
     return ArcsimTiming(seconds=seconds, modules=modules, note=note)
 
 
-def _strip_comments(text: str) -> str:
-    """JSON text without // and /* */ comments (outside strings), as ARCSim's JSON reader takes it."""
-    out, i, n, in_string = [], 0, len(text), False
-    while i < n:
-        c = text[i]
-        if in_string:
-            out.append(c)
-            if c == "\\" and i + 1 < n:
-                out.append(text[i + 1])
-                i += 1
-            elif c == '"':
-                in_string = False
-        elif c == '"':
-            in_string = True
-            out.append(c)
-        elif text.startswith("//", i):
-            i = text.find("\n", i)
-            i = n if i < 0 else i
-            continue
-        elif text.startswith("/*", i):
-            j = text.find("*/", i + 2)
-            i = n if j < 0 else j + 2
-            continue
-        else:
-            out.append(c)
-        i += 1
-    return "".join(out)
-
-
 def read_conf(path) -> dict:
     """A scene file of ARCSim (JSON with comments) as a dict; ArcsimError naming it if unreadable."""
     path = Path(path)
     try:
-        return json.loads(_strip_comments(path.read_text()))
+        return json.loads(strip_json_comments(path.read_text()))
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise ArcsimError(f"{path}: cannot be read as ARCSim's JSON ({exc})") from None
 
