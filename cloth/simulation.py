@@ -9,7 +9,10 @@ DESIGN.md section 1, one named stage per line::
     untangle          remesh + self_collision or mesh obstacles: after a remesh that changed the
                       mesh (and after a frame that left crossings)
     buckling          mode's buckling (needs a camera): compression factors of eq 11
+    steps              the scene's steps_per_frame (fewer for a character wholly out of view,
+                       mode=viewdep; more when scene.obstacle_step asks it of a fast obstacle)
     for each of the frame's steps:
+        handles            a handle past its end_time lets go of its nodes
         obstacle_contact   'obstacles': contact constraints for the solve (start of the step)
         implicit step      force terms of the declared effects, linear solve; handles prescribed
         strain_limiting    'strain_limiting': principal stretches into the material's limits,
