@@ -17,6 +17,8 @@
   the parts of ARCSim's dancing body are) whose vertices follow each part's motion, evaluated
   as ARCSim evaluates it (Hermite keyframes, .mot files), scale included; its velocities are
   the central differences of those positions. Obstacles with start or end times are refused.
+  A fast obstacle gets substeps (:data:`OBSTACLE_STEP`: at most half the contact thickness of
+  obstacle motion per step), so a frame may take more steps than the conf's ``frame_steps``.
 * **effects** (what the scene does not ask for costs nothing): membrane and bending; gravity
   when it is not zero; wind (ARCSim's air: quadratic normal pressure of its density and a
   tangential drag, :class:`~cloth.core.scene.Wind`) when the air has a density, a drag or a
