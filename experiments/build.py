@@ -243,11 +243,7 @@ def build_simulation(cfg: DictConfig, character: int | None = None):
 
     For a crowd scene (cloth.scenes.registry.CROWDS) this is the simulation of one `character` (0 if None).
     """
-    n_frames = cfg.get("frames")
-    if n_frames is None and cfg.scene.name == "arcsim":  # the ARCSim conf's own end
-        n_frames = _arcsim_frames(cfg)
-    _require(isinstance(n_frames, int) and not isinstance(n_frames, bool) and n_frames >= 1, "frames",
-             f"must be an integer >= 1, got {n_frames!r}")
+    n_frames = run_frames(cfg)
     _require(isinstance(cfg.get("seed"), int), "seed", f"must be an integer, got {cfg.get('seed')!r}")
     _require(cfg.get("max_speed", 0) > 0, "max_speed", f"must be > 0 m/s, got {cfg.get('max_speed')!r}")
     mode = cfg.mode.name
@@ -325,6 +321,16 @@ def build_simulation(cfg: DictConfig, character: int | None = None):
         remesher.pop = None
     return (Simulation(scene, solver=solver, remesher=remesher, max_speed=float(cfg.max_speed), buckling=buckling),
             int(n_frames))
+
+
+def run_frames(cfg: DictConfig) -> int:
+    """The frames a run simulates: `frames`, or with scene=arcsim and frames=null the conf's end."""
+    n_frames = cfg.get("frames")
+    if n_frames is None and cfg.scene.name == "arcsim":  # the ARCSim conf's own end
+        n_frames = _arcsim_frames(cfg)
+    _require(isinstance(n_frames, int) and not isinstance(n_frames, bool) and n_frames >= 1, "frames",
+             f"must be an integer >= 1, got {n_frames!r}")
+    return int(n_frames)
 
 
 def _arcsim_frames(cfg: DictConfig) -> int:

@@ -42,7 +42,7 @@ from cloth.io.checkpoint import CHECKPOINT_DIR, CHECKPOINT_INFO, CheckpointError
 from cloth.io.manifest import code_version, environment_manifest, write_json_atomic, write_parquet_atomic
 from cloth.runner import combine_crowd, run
 from cloth.simulation import SimulationDiverged
-from experiments.build import ConfigError, crowd_backend, crowd_size
+from experiments.build import ConfigError, crowd_backend, crowd_size, run_frames
 from experiments.crowd import run_characters, where
 from experiments.run import checkpoint_every, make_recorder, run_character
 
@@ -108,7 +108,7 @@ def _record_resume(manifest_dir: Path, frame: int, seed: int) -> str | None:
 
 def _continue(cfg: DictConfig, run_dir: Path, ckpt, recording_id, progress: bool, root: str = "world",
               log_camera: bool = True) -> dict:
-    """Cut frames.parquet back to the checkpoint and run on to cfg.frames in the same folder."""
+    """Cut frames.parquet back to the checkpoint and run on to the run's frames in the same folder."""
     options = _options(cfg)
     if ckpt.rows:
         write_parquet_atomic(run_dir / "frames.parquet", pd.DataFrame(ckpt.rows))
@@ -116,7 +116,7 @@ def _continue(cfg: DictConfig, run_dir: Path, ckpt, recording_id, progress: bool
         (run_dir / "frames.parquet").unlink(missing_ok=True)
     recorder = make_recorder(cfg, run_dir, root=root, recording_id=recording_id, log_camera=log_camera,
                          name=f"recording_from_{ckpt.frame:05d}.rrd")
-    return run(ckpt.sim, int(cfg.frames), run_dir, recorder=recorder, progress=progress, rows=ckpt.rows, **options)
+    return run(ckpt.sim, run_frames(cfg), run_dir, recorder=recorder, progress=progress, rows=ckpt.rows, **options)
 
 
 def resume_character(config_yaml: str, character: int, out_dir: str, recording_id: str | None) -> dict:
@@ -188,6 +188,7 @@ def resume(run_dir, progress: bool | None = None) -> dict:
     _refuse_finished(run_dir, _status(run_dir))
     try:
         _options(cfg)
+        run_frames(cfg)
         dancers = crowd_size(cfg)
     except ConfigError as exc:
         raise ResumeError(f"{run_dir}/config.yaml: {exc}") from None
@@ -202,7 +203,7 @@ def resume(run_dir, progress: bool | None = None) -> dict:
     if warning:
         print(warning, file=sys.stderr)
     recording_id = _record_resume(run_dir, ckpt.frame, int(cfg.seed))
-    print(f"resuming {run_dir} from frame {ckpt.frame} (t = {ckpt.time:.4f} s) to frame {int(cfg.frames)}")
+    print(f"resuming {run_dir} from frame {ckpt.frame} (t = {ckpt.time:.4f} s) to frame {run_frames(cfg)}")
     return _continue(cfg, run_dir, ckpt, recording_id,
                      progress=bool(cfg.output.get("progress", False)) if progress is None else progress)
 

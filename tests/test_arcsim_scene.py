@@ -190,3 +190,28 @@ def test_a_fast_obstacle_gets_substeps_so_that_it_moves_at_most_half_the_thickne
     still = [[{"time": 0, "transform": {"scale": 0.12}}, {"time": 1, "transform": {"scale": 0.12}}]]
     sim = Simulation(arcsim_scene(conf=str(_write_scene(tmp_path, motions=still))))
     assert sim.obstacle_steps() == 1 and sim.advance_frame()["steps"] == 4
+
+
+def test_a_failed_run_to_the_conf_end_resumes_to_it(tmp_path, monkeypatch):
+    """frames=null: the run and its resume both go to the conf's end (5 frames)."""
+    from cloth.simulation import Simulation
+    from experiments import resume as resume_mod
+
+    conf = _write_scene(tmp_path)
+    original, calls = Simulation.advance_frame, [0]
+
+    def crash_at_the_fourth(self):
+        calls[0] += 1
+        if calls[0] == 4:
+            raise RuntimeError("simulated crash")
+        return original(self)
+
+    out = tmp_path / "run"
+    with monkeypatch.context() as m:
+        m.setattr(Simulation, "advance_frame", crash_at_the_fourth)
+        with pytest.raises(RuntimeError, match="simulated crash"):
+            run_config(out, "scene=arcsim", f"scene.params.conf={conf}", "scale=paper", "output.checkpoint_every=2",
+                       *QUIET)
+    assert len(read_frames(out)) == 3
+    summary = resume_mod.resume(out, progress=False)
+    assert summary["status"] == "completed" and summary["frames_completed"] == 5
