@@ -51,8 +51,11 @@ def test_benchmark_modes_times_the_three_modes_per_face_and_phase(tmp_path):
     assert adaptive.remesh_us_per_face_step > 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["adaptive_over_fixed_frame_time"] == pytest.approx(adaptive.s_per_frame / fixed.s_per_frame)
+    assert summary["scale"] == "small"
     with pytest.raises(SystemExit):
         main(["--modes", "--scene", "no_such_scene", "--out", str(tmp_path / "bad")])
+    with pytest.raises(SystemExit):  # argparse names the choices
+        main(["--modes", "--scale", "huge", "--out", str(tmp_path / "bad")])
 
 
 def test_compare_modes_tabulates_the_three_modes(tmp_path):
