@@ -204,6 +204,19 @@ def run_module(*args: str, env: dict | None = None, timeout: float = 600) -> sub
                           timeout=timeout)
 
 
+# ---- elements ----------------------------------------------------------------------------
+
+def random_rest_triangle(seed: int):
+    """(u (3, 2) counter-clockwise material corners, Dm^-1 (2, 2), area) of a seeded random triangle."""
+    r = np.random.default_rng(seed)
+    u = r.standard_normal((3, 2))
+    d1, d2 = u[1] - u[0], u[2] - u[0]
+    if d1[0] * d2[1] - d1[1] * d2[0] < 0:
+        u = u[[0, 2, 1]]
+    Dm = np.column_stack([u[1] - u[0], u[2] - u[0]])
+    return u, np.linalg.inv(Dm), 0.5 * np.linalg.det(Dm)
+
+
 # ---- measured materials ------------------------------------------------------------------
 
 # A made-up material in ARCSim's format (no ARCSim file is in the repository: it is not ours to

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import QUIET, compose_config, read_frames, run_config
+from helpers import MEASURED_JSON, QUIET, compose_config, read_frames, run_config, write_material
 
 from cloth.core.scene import SceneError
 from cloth.io.states import load_state
@@ -37,10 +37,8 @@ def _write_scene(root: Path, **top) -> Path:
     v, f = icosphere(1.0, 2)
     lines = [f"v {x:.9f} {y:.9f} {z:.9f}" for x, y, z in v] + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in f]
     (root / "meshes" / "sphere.obj").write_text("\n".join(lines) + "\n")
-    stretching = [[40.0 + 5 * i, 10.0 + i, 60.0 + 4 * i, 15.0 + 2 * i] for i in range(6)]
-    bending = [[20e-6 + 1e-6 * j + 2e-6 * i for j in range(5)] for i in range(3)]
-    (root / "materials" / "test-knit.json").write_text(
-        "// a made-up knit\n" + json.dumps({"density": 0.2, "stretching": stretching, "bending": bending}))
+    write_material(root / "materials" / "test-knit.json",
+                   text="// a made-up knit\n" + json.dumps(MEASURED_JSON))  # density 0.2 kg/m^2
     conf = {
         "frame_time": FRAME_TIME, "frame_steps": 4, "end_time": 0.2,
         "cloths": [{"mesh": "meshes/square.obj",

@@ -3,6 +3,7 @@ energy, gradient and Hessian against the public filter and finite differences.""
 
 import numpy as np
 import pytest
+from helpers import random_rest_triangle
 
 from cloth.physics.buckling import BucklingError, BucklingParams, compression_factor, face_alpha, filter_strain
 from cloth.physics.membrane import deformation_gradient, green_strain, stvk_element
@@ -61,22 +62,12 @@ def test_face_alpha_only_touches_out_of_frustum_faces():
     assert np.allclose(face_alpha(area, out, BucklingParams(mode="uniform")), [1, 0, 0, 1])
 
 
-def _triangle(seed):
-    r = np.random.default_rng(seed)
-    u = r.standard_normal((3, 2))
-    d1, d2 = u[1] - u[0], u[2] - u[0]
-    if d1[0] * d2[1] - d1[1] * d2[0] < 0:
-        u = u[[0, 2, 1]]
-    Dm = np.column_stack([u[1] - u[0], u[2] - u[0]])
-    return u, np.linalg.inv(Dm), 0.5 * np.linalg.det(Dm)
-
-
 def _compressed_cases():
     """Random elements with at least one principal strain below -0.02 and none within 0.02 of 0."""
     rng = np.random.default_rng(3)
     found = 0
     for seed in range(400):
-        u, B, A = _triangle(seed)
+        u, B, A = random_rest_triangle(seed)
         x0 = np.column_stack([u, np.zeros(3)])
         x = x0 * [rng.uniform(0.6, 1.2), rng.uniform(0.6, 1.2), 1] + 0.1 * rng.standard_normal((3, 3))
         E = green_strain(deformation_gradient(x[0], x[1], x[2], B))
@@ -117,7 +108,7 @@ def test_filtered_membrane_matches_the_filter_and_finite_differences(case, alpha
 
 
 def test_alpha_zero_makes_pure_compression_free():
-    u, B, A = _triangle(1)
+    u, B, A = random_rest_triangle(1)
     x = (np.column_stack([u, np.zeros(3)]) * [0.8, 0.7, 1]).reshape(-1)  # compressed both ways
     e, g, _ = stvk_element(x[0:3], x[3:6], x[6:9], B, A, MU, LAM, True, 0.0)
     assert abs(e) < ROUNDOFF and np.abs(g).max() < ROUNDOFF

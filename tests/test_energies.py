@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from helpers import random_rest_triangle
 
 from cloth.core.material import lame_parameters
 from cloth.physics.bending import bending_element, bending_elements, dihedral_angle, hinge_weight
@@ -27,16 +28,6 @@ MU, LAM = 3.0, 2.0
 # Seed of the random cases; each generator of cases and each test draws from its own generator, so
 # that a case is the same whichever tests ran before.
 SEED = 7
-
-
-def _rest_triangle(seed):
-    r = np.random.default_rng(seed)
-    u = r.standard_normal((3, 2))
-    d1, d2 = u[1] - u[0], u[2] - u[0]
-    if d1[0] * d2[1] - d1[1] * d2[0] < 0:
-        u = u[[0, 2, 1]]
-    Dm = np.column_stack([u[1] - u[0], u[2] - u[0]])
-    return u, np.linalg.inv(Dm), 0.5 * np.linalg.det(Dm)
 
 
 def _membrane(x, B, A, project=False):
@@ -73,7 +64,7 @@ def _membrane_cases():
     """Random deformations: general, stretched, compressed (both directions), one-sided."""
     rng = np.random.default_rng(SEED)
     for seed in range(4):
-        u, B, A = _rest_triangle(seed)
+        u, B, A = random_rest_triangle(seed)
         x0 = np.column_stack([u, np.zeros(3)])
         yield u, B, A, (x0 + 0.3 * rng.standard_normal((3, 3))).reshape(-1)
         yield u, B, A, (x0 * [1.3, 1.1, 1] + 0.01 * rng.standard_normal((3, 3))).reshape(-1)
@@ -117,7 +108,7 @@ def _rotation(seed):
 
 
 def test_zero_energy_and_force_at_rest():
-    u, B, A = _rest_triangle(11)
+    u, B, A = random_rest_triangle(11)
     x = (np.column_stack([u, np.zeros(3)]) @ _rotation(1).T + [0.3, -2, 5]).reshape(-1)
     e, g, _ = _membrane(x, B, A)
     assert abs(e) < ROUNDOFF and np.abs(g).max() < ROUNDOFF
@@ -159,7 +150,7 @@ def test_projected_hessians_are_psd_and_exact_where_already_psd():
 def test_membrane_projection_clamps_mild_and_takes_absolute_values_of_strong_compression():
     """Negative eigenvalues -> 0 under mild compression, -> |w| where E's smallest eigenvalue is
     below cloth.physics.membrane.ABSOLUTE_STRAIN (a principal stretch below 0.89)."""
-    u, B, A = _rest_triangle(5)
+    u, B, A = random_rest_triangle(5)
     x0 = np.column_stack([u, np.zeros(3)])
     seen = set()
     for squeeze in (0.95, 0.92, 0.8, 0.5):  # stretch along x; 0.8 and 0.5 are below 0.89
@@ -179,7 +170,7 @@ def test_membrane_projection_clamps_mild_and_takes_absolute_values_of_strong_com
 def test_green_strain_and_stvk_energy_of_a_uniform_stretch():
     F = np.array([[1.1, 0.0], [0.0, 1.0], [0.0, 0.0]])
     assert np.allclose(green_strain(F), [[0.105, 0.0], [0.0, 0.0]], atol=ROUNDOFF)
-    u, B, A = _rest_triangle(3)
+    u, B, A = random_rest_triangle(3)
     x = np.column_stack([u[:, 0] * 1.1, u[:, 1], np.zeros(3)]).reshape(-1)
     e = _membrane(x, B, A)[0]
     assert e == pytest.approx(A * (MU + LAM / 2) * 0.105 ** 2, rel=1e-12)

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from helpers import COTTON, MEASURED_JSON, write_material
+from helpers import COTTON, MEASURED_JSON, random_rest_triangle, write_material
 
 from cloth.core.material import MaterialError
 from cloth.core.measured import MeasuredMaterial, load_arcsim_material, stretching_sample
@@ -288,21 +288,11 @@ def test_hinge_stiffness_and_weight_of_a_folded_pair(material):
 
 # ---- the membrane at fixed stiffness -----------------------------------------------------------
 
-def _rest_triangle(seed):
-    r = np.random.default_rng(seed)
-    u = r.standard_normal((3, 2))
-    d1, d2 = u[1] - u[0], u[2] - u[0]
-    if d1[0] * d2[1] - d1[1] * d2[0] < 0:
-        u = u[[0, 2, 1]]
-    Dm = np.column_stack([u[1] - u[0], u[2] - u[0]])
-    return u, np.linalg.inv(Dm), 0.5 * np.linalg.det(Dm)
-
-
 def _membrane_cases():
     """(rest inverse, area, positions (9,)): general, stretched, compressed both ways, one-sided."""
     rng = np.random.default_rng(SEED)
     for seed in range(3):
-        u, B, A = _rest_triangle(seed)
+        u, B, A = random_rest_triangle(seed)
         x0 = np.column_stack([u, np.zeros(3)])
         for scale, noise in (((1, 1, 1), 0.3), ((1.3, 1.1, 1), 0.01), ((0.7, 0.8, 1), 0.01), ((1.2, 0.6, 1), 0.01)):
             yield B, A, (x0 * scale + noise * rng.standard_normal((3, 3))).reshape(-1)

@@ -7,7 +7,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from helpers import COTTON, MODES, after_every_step, build_sim, mode_overrides, simulation_in_mode
+from helpers import COTTON, MEASURED_JSON, MODES, after_every_step, build_sim, mode_overrides, simulation_in_mode
 
 import cloth.collision.contact
 import cloth.physics.forces
@@ -204,9 +204,8 @@ def test_forces_without_stiffness_match_the_assembled_forces():
     from cloth.core.measured import MeasuredMaterial
     from cloth.physics.forces import MeasuredBending, MeasuredMembrane
 
-    knit = MeasuredMaterial("knit", 0.2, np.array([[40.0 + 5 * i, 10.0 + i, 60.0 + 4 * i, 15.0 + 2 * i]
-                                                   for i in range(6)]),
-                            np.array([[20e-6 + 1e-6 * j + 2e-6 * i for j in range(5)] for i in range(3)]))
+    knit = MeasuredMaterial("knit", MEASURED_JSON["density"], np.array(MEASURED_JSON["stretching"]),
+                            np.array(MEASURED_JSON["bending"]))
     terms = [Membrane(*COTTON.lame()), Bending(1e-3), Gravity((0.0, 0.0, -9.81)), MeasuredMembrane(knit),
              MeasuredBending(knit)]
     pattern = SparsityPattern(mesh.n_nodes, element_families(mesh, terms))
