@@ -52,8 +52,9 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from cloth.collision.contact import resolve_obstacle_contacts
 from cloth.collision.meshobstacle import TriangleMeshObstacle
-from cloth.collision.obstacles import Static
+from cloth.collision.obstacles import ObstacleSet, Static
 from cloth.core.measured import MeasuredMaterial, load_arcsim_material
 from cloth.core.mesh import Mesh
 from cloth.core.scene import Handle, Scene, SceneError, Wind
@@ -300,17 +301,13 @@ def uniform_mesh(mesh: Mesh, handles: list[Handle], edge: float, density: float)
     return mesh
 
 
-def _push_out(mesh: Mesh, obstacle, thickness: float, passes: int = 4) -> None:
-    """Move free nodes nearer than `thickness` to the obstacle (or inside it) out along its normal
-    to the thickness, at t = 0 (edits mesh.node_x)."""
-    obstacle.set_time(0.0)
-    free = np.flatnonzero(~mesh.node_pinned)
-    for _ in range(passes):
-        phi, normal, _ = obstacle.query(mesh.node_x[free])
-        near = phi < thickness
-        if not np.any(near):
-            return
-        mesh.node_x[free[near]] += (thickness - phi[near])[:, None] * normal[near]
+def _push_out(mesh: Mesh, obstacle, thickness: float) -> None:
+    """Move free nodes nearer than `thickness` to the obstacle (or inside it) out to it, at t = 0,
+    with the frame loop's own contact projection (edits mesh.node_x; velocities stay at rest)."""
+    obstacles = ObstacleSet([obstacle])
+    obstacles.set_time(0.0)
+    scratch_v = mesh.node_v.copy()  # the projection edits velocities; the initial state keeps its own
+    resolve_obstacle_contacts(mesh.node_x, scratch_v, mesh.node_pinned, obstacles, thickness, 0.0, 1.0)
 
 
 def arcsim_scene(material=None, *, conf: str | None = None, root: str | None = None, mode_mesh: str = "input",
