@@ -12,7 +12,7 @@ DESIGN.md section 1, one named stage per line::
     steps              the scene's steps_per_frame (fewer for a character wholly out of view,
                        mode=viewdep; more when scene.obstacle_step asks it of a fast obstacle)
     for each of the frame's steps:
-        handles            a handle past its end_time lets go of its nodes
+        handles            a handle takes hold at its start_time, fades after its end_time, lets go
         obstacle_contact   'obstacles': contact constraints for the solve (start of the step)
         implicit step      force terms of the declared effects, linear solve; handles prescribed
         strain_limiting    'strain_limiting': principal stretches into the material's limits,
@@ -59,6 +59,7 @@ from cloth.physics.forces import (
     Bending,
     ForceTerm,
     Gravity,
+    HandleSprings,
     MeasuredBending,
     MeasuredMembrane,
     Membrane,
@@ -88,7 +89,8 @@ class SimulationDiverged(RuntimeError):
 class Stages:
     """The stages a simulation runs, decided once (:func:`plan_stages`). False: never called."""
 
-    forces: tuple = ()  # force terms assembled in the implicit step, by effect name (FORCE_EFFECTS)
+    forces: tuple = ()  # force terms assembled in the implicit step, by effect name (FORCE_EFFECTS), and
+    # 'handle_springs' when a handle fades (its springs after end_time)
     damping: bool = False  # Rayleigh damping in the implicit step ('damping')
     remesh: bool = False  # the mode's remesh stage (mode=adaptive, viewdep)
     untangle: bool = False  # remove crossings after a remesh (with self_collision or triangle-mesh obstacles)
@@ -126,7 +128,8 @@ def plan_stages(scene: Scene, remesher=None, buckling=None) -> Stages:
     self_collision = "self_collision" in effects
     remesh = remesher is not None
     return Stages(
-        forces=tuple(e for e in FORCE_EFFECTS if e in effects),
+        forces=tuple(e for e in FORCE_EFFECTS if e in effects)
+        + (("handle_springs",) if any(h.fade_time > 0 for h in scene.handles) else ()),
         damping="damping" in effects,
         remesh=remesh,
         untangle=remesh and (self_collision or meshes),
@@ -155,6 +158,8 @@ def build_force_terms(scene: Scene) -> list[ForceTerm]:
     if "wind" in scene.effects:
         w = scene.wind
         terms.append(Wind(w.velocity, w.drag, w.gust_amplitude, w.gust_frequency, w.density, w.drag_tangential))
+    if any(h.fade_time > 0 for h in scene.handles):
+        terms.append(HandleSprings(scene.handles))
     return terms
 
 
@@ -272,13 +277,14 @@ class Simulation:
             for i, h in enumerate(scene.handles):
                 h.nodes = np.flatnonzero(handle_ids == i)
                 h.local = np.array(state["handle_local"][h.nodes], dtype=np.float64)
+                h.restore(t)
         else:
             mesh = scene.mesh
             values, _ = transfer_node_values(state, mesh.vert_u, mesh.vert_node, mesh.face_verts)
             mesh.node_x[:] = values["node_x"]
             mesh.node_v[:] = values["node_v"]
-            for h in scene.handles:
-                mesh.node_x[h.nodes] = h.targets(t)
+            for i, h in enumerate(scene.handles):
+                self._restore_fixed_handle(h, np.flatnonzero(handle_ids == i), state["handle_local"], t)
         self.frame, self.time = frame, t
         self.steps_taken = frame * scene.steps_per_frame  # as if every frame took the scene's steps
         self.dt, self._substep = scene.dt, 0
@@ -289,6 +295,25 @@ class Simulation:
             self.obstacle_set.set_time(t)
             for ob in self.mesh_obstacles:
                 ob.set_time(t)
+
+    def _restore_fixed_handle(self, h, state_nodes: np.ndarray, state_local: np.ndarray, t: float) -> None:
+        """A fixed mesh's handle at resumed time t: its phase, its anchor (the state's when the state
+        holds the same nodes, else taken where the nodes are now) and its nodes' pins and positions."""
+        mesh = self.scene.mesh
+        h.restore(t)
+        if h.state == "released":
+            mesh.node_pinned[h.nodes] = False
+            h.nodes, h.local = np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+            return
+        mesh.node_pinned[h.nodes] = h.pinned
+        if h.state == "waiting":
+            return
+        if np.array_equal(state_nodes, h.nodes):
+            h.local = np.array(state_local[h.nodes], dtype=np.float64)
+        else:
+            h.attach(mesh.node_x, t)
+        if h.pinned:
+            mesh.node_x[h.nodes] = h.targets(t)
 
     # ---- the frame -------------------------------------------------------------------------
     def advance_frame(self) -> dict:
@@ -342,8 +367,8 @@ class Simulation:
     def step(self, timings: dict, stats: dict) -> None:
         """One implicit step with its contact and collision stages."""
         stages, mesh, h = self.stages, self.scene.mesh, self.dt
-        for handle in self.scene.handles:  # a handle past its end_time lets go of its nodes
-            handle.release(mesh.node_pinned, self.time)
+        for handle in self.scene.handles:  # take hold, pin, let a spring fade, let go (Handle.update)
+            handle.update(mesh.node_x, mesh.node_pinned, self.time)
         collide = stages.self_collision or stages.obstacle_ccd
         x_start = mesh.node_x.copy() if collide else None
         y_start = self._mesh_obstacle_positions() if stages.obstacle_ccd else None
@@ -384,7 +409,8 @@ class Simulation:
             return None
         x = self.mesh.node_x.copy()
         for handle in self.scene.handles:
-            x[handle.nodes] = handle.targets(t)
+            if handle.pinned:
+                x[handle.nodes] = handle.targets(t)
         return x
 
     def _contact_constraints(self) -> ContactConstraints:

@@ -106,8 +106,7 @@ def test_the_fixed_mesh_is_uniform_keeps_the_handles_and_starts_outside_the_obst
 
 @pytest.mark.parametrize(("top", "key"), [
     ({"magic": {"rib_stiffening": 2.0}}, "magic.rib_stiffening"),
-    ({"handles": [{"nodes": [2], "start_time": 0.1}]}, "start_time"),
-    ({"handles": [{"nodes": [2], "end_time": 1, "fade_time": 0.5}]}, "fade_time"),
+    ({"handles": [{"nodes": [2], "start_time": 0.3, "end_time": 0.2}]}, "handles[0]"),
     ({"obstacles": [{"mesh": "meshes/sphere.obj", "motion": 0, "end_time": 1}]}, "obstacles[0]"),
     ({"disable": ["physics"]}, "physics"),
 ])
@@ -213,3 +212,19 @@ def test_a_failed_run_to_the_conf_end_resumes_to_it(tmp_path, monkeypatch):
     assert len(read_frames(out)) == 3
     summary = resume_mod.resume(out, progress=False)
     assert summary["status"] == "completed" and summary["frames_completed"] == 5
+
+
+def test_a_handle_that_starts_late_and_fades_runs_its_phases(tmp_path):
+    """ARCSim's start_time and fade_time: the corner is free until 0.08 s (frame 2's end), pinned
+    from the step that starts then, fading after 0.12 s with magic handle_stiffness, then released."""
+    handles = [{"nodes": [2], "start_time": 0.08, "end_time": 0.12, "fade_time": 0.04}]
+    conf = _write_scene(tmp_path, handles=handles,
+                        magic={"repulsion_thickness": 5e-3, "handle_stiffness": 400.0})
+    h = arcsim_scene(conf=str(conf)).handles[0]
+    assert (h.start_time, h.end_time, h.fade_time, h.stiffness) == (0.08, 0.12, 0.04, 400.0)
+    out = tmp_path / "run"
+    summary = run_config(out, "scene=arcsim", f"scene.params.conf={conf}", "mode=adaptive", "scale=paper",
+                         "output.states_every=1", *QUIET)
+    assert summary["frames_completed"] == 5
+    pinned = [bool(load_state(p)["node_pinned"].any()) for p in sorted((out / "states").glob("frame_*.npz"))]
+    assert pinned == [False, False, False, True, False, False]

@@ -27,38 +27,95 @@ class SceneError(ValueError):
     """An inconsistent scene; the message names the offending key."""
 
 
+# A handle's phases, in order (:meth:`Handle.phase`).
+HANDLE_PHASES = ("waiting", "pinned", "fading", "released")
+
+
 @dataclass
 class Handle:
     """Nodes whose positions follow a prescribed rigid motion (a pin when the motion is static).
 
-    The nodes' positions at t = 0 are taken as attached to the moving frame:
-    target(t) = R(t) R(0)^T (x(0) - p(0)) + p(t). At `end_time` the handle lets go: its nodes
-    become free (:meth:`release`, called by the frame loop before the first step that starts at
-    or after it) and it holds no node from then on (ARCSim's handles' `end_time`).
+    A handle's life follows ARCSim's handles (``start_time``, ``end_time``, ``fade_time``):
+
+    * waiting, t < start_time: it holds nothing, its nodes are free (a remesh keeps them);
+    * pinned, start_time <= t < end_time: at the first step that starts at or after start_time it
+      takes hold of its nodes where they are then, attached to the motion's frame,
+      target(t) = R(t) R(ts)^T (x(ts) - p(ts)) + p(t), and pins them to their targets;
+    * fading, end_time <= t < end_time + fade_time: the nodes are free and a spring of
+      `stiffness` x s(t), s = (1 - (t - end_time) / fade_time)^4 (ARCSim's strength), pulls each to
+      its target (:class:`cloth.physics.forces.HandleSprings`);
+    * released, after that: it holds no node.
+
+    :meth:`update`, called by the frame loop at the start of every step, moves it between them.
     """
 
     nodes: np.ndarray  # (k,) int: node indices
     motion: object  # a cloth.collision.obstacles motion: pose(t) -> (R (3,3), p (3,))
-    end_time: float = float("inf")  # s, when the handle releases its nodes
+    end_time: float = float("inf")  # s, when the handle stops pinning its nodes
+    start_time: float = 0.0  # s, when it takes hold of them
+    fade_time: float = 0.0  # s, how long its spring fades after end_time (0: it lets go at once)
+    stiffness: float = 1e3  # N/m, the fading spring's stiffness at full strength (ARCSim's magic handle_stiffness)
     local: np.ndarray = field(init=False, default=None)  # (k, 3) positions in the motion's frame
+    state: str = field(init=False, default="waiting")  # one of HANDLE_PHASES
 
-    def attach(self, node_x: np.ndarray) -> None:
-        R0, p0 = self.motion.pose(0.0)
+    def check(self, where: str) -> None:
+        """SceneError naming `where` unless the times and stiffness are consistent."""
+        if not (self.start_time >= 0 and self.end_time > self.start_time):
+            raise SceneError(f"{where}: a handle needs 0 <= start_time < end_time, got start_time "
+                             f"{self.start_time} s, end_time {self.end_time} s")
+        if not self.fade_time >= 0 or (self.fade_time > 0 and not self.stiffness > 0):
+            raise SceneError(f"{where}: a handle's fade_time must be >= 0 s and a fading handle's stiffness "
+                             f"> 0 N/m, got fade_time {self.fade_time}, stiffness {self.stiffness}")
+
+    def phase(self, t: float) -> str:
+        if t < self.start_time:
+            return "waiting"
+        if t < self.end_time:
+            return "pinned"
+        return "fading" if t < self.end_time + self.fade_time else "released"
+
+    @property
+    def pinned(self) -> bool:
+        return self.state == "pinned"
+
+    def attach(self, node_x: np.ndarray, t: float = 0.0) -> None:
+        """Take hold of the nodes where they are at time t, in the motion's frame then."""
+        R, p = self.motion.pose(t)
         self.nodes = np.asarray(self.nodes, dtype=np.int64)
-        self.local = (node_x[self.nodes] - p0) @ R0  # = R0^T (x - p0), row-wise
+        self.local = (node_x[self.nodes] - p) @ R  # = R^T (x - p), row-wise
 
     def targets(self, t: float) -> np.ndarray:
         R, p = self.motion.pose(t)
         return self.local @ R.T + p
 
-    def release(self, node_pinned: np.ndarray, t: float) -> bool:
-        """At or after end_time, unpin the nodes (edits `node_pinned`) and hold none; True if it did."""
-        if t < self.end_time or self.nodes.size == 0:
+    def strength(self, t: float) -> float:
+        """The fading spring's factor at t (1 at end_time, 0 at end_time + fade_time)."""
+        if self.fade_time <= 0:
+            return 0.0
+        s = min(max(1.0 - (t - self.end_time) / self.fade_time, 0.0), 1.0)
+        return s ** 4
+
+    def update(self, node_x: np.ndarray, node_pinned: np.ndarray, t: float) -> bool:
+        """Enter the phase of time t (the start of a step): take hold, pin, unpin or let go; edits
+        `node_pinned`. True if the phase changed."""
+        phase = self.phase(t)
+        if phase == self.state:
             return False
-        node_pinned[self.nodes] = False
-        self.nodes = np.zeros(0, dtype=np.int64)
-        self.local = np.zeros((0, 3))
+        if self.state == "waiting":
+            self.attach(node_x, t)
+        if phase == "released":
+            node_pinned[self.nodes] = False
+            self.nodes = np.zeros(0, dtype=np.int64)
+            self.local = np.zeros((0, 3))
+        else:
+            node_pinned[self.nodes] = phase == "pinned"
+        self.state = phase
         return True
+
+    def restore(self, t: float) -> None:
+        """Set the phase of a run resumed at frame time t (a handle whose start_time is t has not
+        taken hold yet: that happens at the next step)."""
+        self.state = "waiting" if t <= self.start_time and self.start_time > 0 else self.phase(t)
 
 
 @dataclass
@@ -129,10 +186,11 @@ class Scene:
             raise SceneError(f"scene {self.name!r}: thickness, friction and self_friction must be >= 0")
         self.mesh.update_rest_data(self.material.density)
         for handle in self.handles:
-            if not handle.end_time > 0:
-                raise SceneError(f"scene {self.name!r}: a handle's end_time must be > 0 s, got {handle.end_time}")
-            handle.attach(self.mesh.node_x)
-            self.mesh.node_pinned[handle.nodes] = True
+            handle.check(f"scene {self.name!r}")
+            handle.nodes = np.asarray(handle.nodes, dtype=np.int64)
+            handle.state, handle.local = "waiting", np.zeros((handle.nodes.size, 3))
+            self.mesh.node_pinned[handle.nodes] = False
+            handle.update(self.mesh.node_x, self.mesh.node_pinned, 0.0)
 
     @property
     def dt(self) -> float:

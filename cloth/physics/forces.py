@@ -223,6 +223,33 @@ class Gravity(ForceTerm):
         acc.energy[self.name] = float(-np.sum(mesh.node_m * (mesh.node_x @ self.g)))
 
 
+class HandleSprings(ForceTerm):
+    """The springs of fading handles (ARCSim's handle constraints after their end_time): each node
+    of a handle in its fading phase is pulled to its target by k s(t) (target - x), k the handle's
+    stiffness and s its strength (cloth.core.scene.Handle); energy k s |target - x|^2 / 2."""
+
+    name = "handle_springs"
+
+    def __init__(self, handles: list):
+        self.handles = handles  # the scene's, whose phases the frame loop moves
+        self.diag = np.zeros(0, dtype=np.int64)
+
+    def rebuild(self, mesh, pattern):
+        self.diag = pattern.diag
+
+    def accumulate(self, mesh, t, acc):
+        energy = 0.0
+        for h in self.handles:
+            if h.state != "fading" or h.nodes.size == 0:
+                continue
+            k = h.stiffness * h.strength(t)
+            d = h.targets(t) - mesh.node_x[h.nodes]
+            acc.force[h.nodes] += k * d
+            acc.K[self.diag[h.nodes]] += k * np.eye(3)
+            energy += 0.5 * k * float((d * d).sum())
+        acc.energy[self.name] = energy
+
+
 @njit(cache=True)
 def drag_elements(node_x, node_v, face_nodes, wind, drag, density, drag_tangential, out_force, out_jac):
     """Air drag per face against the wind w, a third of the face's force to each node:

@@ -246,6 +246,7 @@ class AdaptiveRemesher:
             sel = np.flatnonzero(result.node_handle == i)
             h.nodes = sel
             h.local = np.ascontiguousarray(nd[sel, 9:12])
+            new.node_pinned[sel] = h.pinned  # a waiting or fading handle's nodes are kept, not pinned
         sim.rebuild()
         restore_momentum(new, momentum)
         x_topo = new.node_x.copy()  # the remeshed surface: the old one, re-triangulated

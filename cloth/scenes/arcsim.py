@@ -10,9 +10,11 @@
   ``strain_limits`` as the ``strain_limiting`` effect). Several cloths are merged into one mesh
   when they share one material entry; otherwise the run stops naming ``cloths``.
 * **handles**: each node of a node handle is a project :class:`~cloth.core.scene.Handle` of its
-  own (a node the remesher puts between two of them stays free, as in ARCSim), following its
-  motion relative to its position at t = 0 (ARCSim's attachment at the handle's start), until
-  ``end_time``. A later ``start_time``, a ``fade_time`` and a motion that scales are refused.
+  own (a node the remesher puts between two of them stays free, as in ARCSim). It takes hold at
+  its ``start_time`` where its node is then and follows its motion relative to that pose
+  (ARCSim's attachment at the handle's start); it pins the node until ``end_time``, then for
+  ``fade_time`` pulls it with a spring of magic ``handle_stiffness`` x ARCSim's fading strength;
+  before ``start_time`` the node is free but kept by the remesher. A motion that scales is refused.
 * **obstacles**: all of them are one triangle-mesh obstacle (a union of closed components, as
   the parts of ARCSim's dancing body are) whose vertices follow each part's motion, evaluated
   as ARCSim evaluates it (Hermite keyframes, .mot files), scale included; its velocities are
@@ -30,10 +32,10 @@
 * ``friction`` is the cloth-cloth coefficient, ``obs_friction`` the cloth-obstacle one; magic
   ``repulsion_thickness`` is the contact thickness. Magic numbers without a counterpart here are
   said in the scene's notes when the conf changes them from ARCSim's defaults (``collision_stiffness``
-  and ``handle_stiffness``: contacts and handles are exact constraints here, with no penalty
-  stiffness; ``projection_thickness``), and refused when they ask for something this tool does
-  not do (``rib_stiffening`` other than 1, ``preserve_creases``, ``fixed_high_res_mesh``).
-  Disabling ``physics`` is refused; ``remeshing`` and ``popfilter`` act on the mode
+  and ``handle_stiffness`` outside a handle's fade: contacts and pinned handles are exact
+  constraints here, with no penalty stiffness; ``projection_thickness``), and refused when they
+  ask for something this tool does not do (``rib_stiffening`` other than 1, ``preserve_creases``,
+  ``fixed_high_res_mesh``). Disabling ``physics`` is refused; ``remeshing`` and ``popfilter`` act on the mode
   (:func:`arcsim_remesher_overrides`).
 
 The fixed mesh of ``mode=nonadaptive`` is the input mesh remeshed once, at build time, to
@@ -80,7 +82,7 @@ MAGIC_REFUSED = {"rib_stiffening": 1.0, "preserve_creases": False, "fixed_high_r
 # Magic numbers read for nothing here, with why (said in the scene's notes).
 MAGIC_NOTED = {
     "collision_stiffness": "contacts are exact constraints here (no repulsion penalty stiffness)",
-    "handle_stiffness": "handles are exact constraints here (no handle penalty stiffness)",
+    "handle_stiffness": "pinned handles are exact constraints here (it is the fading spring's stiffness only)",
     "projection_thickness": "obstacle contacts are projected to the repulsion thickness",
     "edge_flip_threshold": "the mode's remesh.flip_threshold applies",
     "combine_tensors": "the mode's sizing.combine applies",
@@ -198,15 +200,12 @@ def _handles(cfg: ArcsimConfig, offsets: list[int]) -> list[Handle]:
     out = []
     for i, h in enumerate(cfg.handles):
         key = f"handles[{i}]"
-        if h.start_time > 0:
-            raise SceneError(f"scene 'arcsim': {cfg.conf_path}: {key}.start_time: handles that start after "
-                             "t = 0 are not supported (they hold from the start here)")
-        if h.fade_time > 0:
-            raise SceneError(f"scene 'arcsim': {cfg.conf_path}: {key}.fade_time: fading handles are not "
-                             "supported (a handle lets go at its end_time here)")
         motion = _rigid_motion(cfg, h.motion, f"{key}.motion")
         for node in np.asarray(h.nodes, dtype=np.int64) + offsets[h.cloth]:
-            out.append(Handle(np.array([node]), motion, end_time=h.end_time))
+            handle = Handle(np.array([node]), motion, end_time=h.end_time, start_time=h.start_time,
+                            fade_time=h.fade_time, stiffness=float(cfg.magic["handle_stiffness"]))
+            handle.check(f"scene 'arcsim': {cfg.conf_path}: {key}")
+            out.append(handle)
     return out
 
 
