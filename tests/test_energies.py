@@ -241,3 +241,27 @@ def test_bending_gauss_newton_hessian_is_w_grad_theta_outer_and_psd(case):
     assert np.linalg.eigvalsh(H_gn).min() >= -ROUNDOFF * np.abs(H_gn).max()
     at_rest = _bending(x, rest + d, w, GAUSS_NEWTON)[2]
     assert _rel(at_rest, _bending(x, rest + d, w, False)[2]) < FD_REL_TOL
+
+
+@pytest.mark.parametrize("case", range(16))
+def test_membrane_gauss_newton_hessian_clamps_the_stress_in_the_geometric_term(case):
+    """project=GAUSS_NEWTON: the same energy and gradient; the Hessian is the exact one with the
+    second Piola-Kirchhoff stress S replaced by its positive part in the geometric term,
+    area (g_a^T (S+ - S) g_b) I per node pair, so it is PSD, and exact where S is PSD."""
+    from cloth.physics.membrane import GAUSS_NEWTON
+
+    u, B, A, x = list(_membrane_cases())[case]
+    e, g, H = _membrane(x, B, A)
+    e_gn, g_gn, H_gn = _membrane(x, B, A, GAUSS_NEWTON)
+    assert e_gn == e and np.array_equal(g_gn, g)
+    E = green_strain(deformation_gradient(x[0:3], x[3:6], x[6:9], B))
+    S = 2 * MU * E + LAM * np.trace(E) * np.eye(2)
+    w, Q = np.linalg.eigh(S)
+    S_plus = (Q * np.maximum(w, 0.0)) @ Q.T
+    G = np.vstack([-B.sum(axis=0), B])  # rows: d(F)/d(x_a) coefficients g_a, a = 0, 1, 2
+    expected = H + A * np.kron(G @ (S_plus - S) @ G.T, np.eye(3))
+    scale = np.abs(H).max()
+    assert np.allclose(H_gn, expected, atol=ROUNDOFF * scale)
+    assert np.linalg.eigvalsh(H_gn).min() >= -PSD_TOL * scale
+    if w.min() >= 0:
+        assert np.allclose(H_gn, H, atol=ROUNDOFF * scale)

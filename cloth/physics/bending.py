@@ -29,10 +29,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from cloth.physics.membrane import project_psd
-
-# `project` value of the element kernels for the Gauss-Newton Hessian (see bending_element_into).
-GAUSS_NEWTON = 2
+from cloth.physics.membrane import GAUSS_NEWTON, project_psd
 
 # A hinge whose y^2 + z^2 = |n_A|^2 |n_B|^2 falls below this (m^8) has a collapsed face in world
 # space: its angle is undefined and it exerts no force.

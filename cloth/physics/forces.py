@@ -83,10 +83,12 @@ class Membrane(ForceTerm):
         self.energy, self.grad, self.hess = np.zeros(F), np.zeros((F, 9)), np.empty((F, 9, 9))
         self.alpha = np.ones(F)
 
-    def elements(self, node_x, face_nodes, face_Dm_inv, face_area, face_alpha, out_energy, out_grad, out_hess):
-        """Energy, gradient and Hessian of the given faces (the pop filter's region; writes the outs)."""
-        membrane_elements(node_x, face_nodes, face_Dm_inv, face_area, self.mu, self.lam, self.project,
-                          out_energy, out_grad, out_hess, face_alpha)
+    def elements(self, node_x, face_nodes, face_Dm_inv, face_area, face_alpha, out_energy, out_grad, out_hess,
+                 project=None):
+        """Energy, gradient and Hessian of the given faces (the pop filter's region; writes the outs);
+        `project` as the kernel's (None: this term's own)."""
+        membrane_elements(node_x, face_nodes, face_Dm_inv, face_area, self.mu, self.lam,
+                          self.project if project is None else project, out_energy, out_grad, out_hess, face_alpha)
 
     def accumulate(self, mesh, t, acc):
         membrane_elements(mesh.node_x, mesh.face_nodes, mesh.face_Dm_inv, mesh.face_area,
@@ -119,9 +121,12 @@ class MeasuredMembrane(Membrane):
         super().rebuild(mesh, pattern)
         self.face_k = np.zeros((mesh.n_faces, 4))
 
-    def elements(self, node_x, face_nodes, face_Dm_inv, face_area, face_alpha, out_energy, out_grad, out_hess):
+    def elements(self, node_x, face_nodes, face_Dm_inv, face_area, face_alpha, out_energy, out_grad, out_hess,
+                 project=None):
+        # the measured kernel projects (any true `project`, GAUSS_NEWTON included) or not
         k = np.empty((face_nodes.shape[0], 4))
-        measured_membrane_elements(node_x, face_nodes, face_Dm_inv, face_area, self.samples, self.project,
+        measured_membrane_elements(node_x, face_nodes, face_Dm_inv, face_area, self.samples,
+                                   self.project if project is None else bool(project),
                                    out_energy, out_grad, out_hess, face_alpha, k)
 
     def accumulate(self, mesh, t, acc):

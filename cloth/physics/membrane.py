@@ -83,6 +83,10 @@ def green_strain(F):
 # Smallest Green strain (1/2 (stretch^2 - 1)) below which the projection takes absolute values
 # of negative eigenvalues instead of clamping them (see the module docstring).
 ABSOLUTE_STRAIN = -0.1
+# `project` value of the element kernels for the Gauss-Newton Hessian: membrane, the stress
+# clamped to its positive part in the geometric term (stvk_element_into); bending, the term
+# w u u^T only (cloth.physics.bending). Positive semi-definite without a 9x9 or 12x12 eigensolve.
+GAUSS_NEWTON = 2
 
 
 @njit(cache=True)
@@ -210,6 +214,9 @@ def stvk_element_into(x0, x1, x2, Dm_inv, area, mu, lam, project, grad, hess, al
     """StVK energy of one face; writes the gradient (9,) and Hessian (9, 9), returns the energy.
 
     `alpha` < 1 filters the compressive principal strains (buckling compensation, eq 10).
+    `project`: False, the exact Hessian; True, projected to positive semi-definite where the
+    stress is not; GAUSS_NEWTON, the stress's positive part in the geometric term (a filtered
+    face, alpha < 1, is projected instead).
     """
     F = deformation_gradient(x0, x1, x2, Dm_inv)
     E = green_strain(F)
@@ -233,6 +240,16 @@ def stvk_element_into(x0, x1, x2, Dm_inv, area, mu, lam, project, grad, hess, al
             Fg[a, i] = F[i, 0] * g[a, 0] + F[i, 1] * g[a, 1]
             grad[3 * a + i] = area * (F[i, 0] * Sg[a, 0] + F[i, 1] * Sg[a, 1])
     FFt = F @ F.T
+    clamp = project == GAUSS_NEWTON and not (S00 + S11 >= 0.0 and S00 * S11 - S01 * S01 >= 0.0)
+    if clamp:  # the geometric term of S's positive part: the material term is PSD, so is their sum
+        l1, l2, q1, q2 = _eig_sym2(S00, S01, S11)
+        l1, l2 = max(l1, 0.0), max(l2, 0.0)
+        P00 = l1 * q1[0] * q1[0] + l2 * q2[0] * q2[0]
+        P01 = l1 * q1[0] * q1[1] + l2 * q2[0] * q2[1]
+        P11 = l1 * q1[1] * q1[1] + l2 * q2[1] * q2[1]
+        for a in range(3):
+            Sg[a, 0] = P00 * g[a, 0] + P01 * g[a, 1]
+            Sg[a, 1] = P01 * g[a, 0] + P11 * g[a, 1]
     for a in range(3):
         for b in range(3):
             gSg = g[a, 0] * Sg[b, 0] + g[a, 1] * Sg[b, 1]
@@ -244,7 +261,7 @@ def stvk_element_into(x0, x1, x2, Dm_inv, area, mu, lam, project, grad, hess, al
                         h += gSg
                     hess[3 * a + i, 3 * b + j] = area * h
     # S is PSD iff its trace and determinant are >= 0; then so is the Hessian
-    if project and not (S00 + S11 >= 0.0 and S00 * S11 - S01 * S01 >= 0.0):
+    if project and not clamp and not (S00 + S11 >= 0.0 and S00 * S11 - S01 * S01 >= 0.0):
         project_psd(hess, _strongly_compressed(E[0, 0], E[0, 1], E[1, 1]))
     return energy
 
