@@ -45,6 +45,15 @@ def try_collapse(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv,
         l2 = math.sqrt(e2x * e2x + e2y * e2y)
         if (e1x * e2x + e1y * e2y) < cos_corner * l1 * l2:
             return False
+    # the size of every new edge at b first: the cheapest test, and the one most candidates fail
+    for i in range(n):
+        fa = buf[i]
+        if fv[fa, 0] == b or fv[fa, 1] == b or fv[fa, 2] == b:
+            continue
+        for s in range(3):
+            x = fv[fa, s]
+            if x != a and edge_s2(vu, vM, b, x) > max_s2:
+                return False
     # link condition: the verts adjacent to both a and b are exactly the edge's opposite verts
     nb2, b_bnd, _, _ = ring(fv, fadj, vface, b, buf2)
     if nb2 < 0:
@@ -73,7 +82,7 @@ def try_collapse(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv,
                         break
                 if not ok:
                     return False
-    # new faces: quality, orientation, world strain and the size of every new edge at b
+    # new faces: quality, orientation and world strain
     old_strain = 0.0
     for i in range(n):
         fa = buf[i]
@@ -92,9 +101,6 @@ def try_collapse(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv,
             return False
         if world_strain(vu, vnode, nd, p0, p1, p2) > strain_limit:
             return False  # the world surface would crease or stretch more than it already is
-        for x in (p0, p1, p2):
-            if x != b and edge_s2(vu, vM, b, x) > max_s2:
-                return False
     if n_keep == 0 and not a_bnd:
         return False
     # --- apply: the faces holding both a and b die, their outer sides are joined --------------
