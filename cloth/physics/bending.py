@@ -188,12 +188,20 @@ def bending_element_into(x0, x1, x2, x3, rest_theta, weight, project, grad, hess
         return 0.0
     d = theta - rest_theta
     g9 = weight * d * u
-    if project == GAUSS_NEWTON:
-        H9 = weight * np.outer(u, u)  # positive semi-definite by construction, no eigensolve
-    else:
-        H9 = weight * (np.outer(u, u) + d * H)
-        if project and d != 0.0 and not _is_psd(H9):
-            project_psd(H9)
+    if project == GAUSS_NEWTON:  # w U U^T, U = d theta / d(x0..x3): PSD by construction, no eigensolve
+        for k in range(3):
+            for i in range(3):
+                grad[3 * (k + 1) + i] = g9[3 * k + i]
+                grad[i] -= g9[3 * k + i]
+        for p in range(12):
+            up = u[p - 3] if p >= 3 else -(u[p] + u[p + 3] + u[p + 6])
+            for q in range(12):
+                uq = u[q - 3] if q >= 3 else -(u[q] + u[q + 3] + u[q + 6])
+                hess[p, q] = weight * up * uq
+        return 0.5 * weight * d * d
+    H9 = weight * (np.outer(u, u) + d * H)
+    if project and d != 0.0 and not _is_psd(H9):
+        project_psd(H9)
     # (a, b, c) = (x1 - x0, x2 - x0, x3 - x0): x0 gets minus the sum, x1..x3 the blocks
     for k in range(3):
         for i in range(3):
