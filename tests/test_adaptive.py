@@ -16,6 +16,10 @@ CONTACT_SLACK = 1e-9
 # may add little more than that within the next frame. Without the filter the remesh spike of
 # internal energy (~0.1 J here) would turn into kinetic energy.
 POP_KE_BOUND_J = 2e-3
+# The sheet comes to rest on the sphere (kinetic energy below this) by frame 30 to 55, by seed and
+# round-off: its slide off the top is chaotic. The no-pop test waits for it, up to REST_FRAMES_MAX.
+REST_KE_J = 5e-4
+REST_FRAMES_MAX = 90
 # The pop filter stops at |grad P| < 1e-3 of its first value, so two runs of it that take other
 # Newton steps end at energies this close, not equal (measured: 1e-6 on a draped sheet).
 POP_INEXACT_REL = 1e-4
@@ -98,10 +102,11 @@ def test_refinement_concentrates_where_the_cloth_folds(draped):
 
 def test_remeshing_a_resting_draped_sheet_makes_no_pop(draped):
     sim = draped
-    while sim.frame < 30:
-        sim.advance_frame()
     ke0 = sim.state_record()["kinetic_energy_j"]
-    assert ke0 < POP_KE_BOUND_J
+    while (sim.frame < 30 or ke0 >= REST_KE_J) and sim.frame < REST_FRAMES_MAX:  # wait for it to rest
+        sim.advance_frame()
+        ke0 = sim.state_record()["kinetic_energy_j"]
+    assert ke0 < REST_KE_J
     # a finer sizing forces many splits (and flips) under the draped cloth
     from dataclasses import replace
     sim.remesher.sizing = replace(sim.remesher.sizing, refine_angle=0.5 * sim.remesher.sizing.refine_angle)

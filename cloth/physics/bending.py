@@ -89,9 +89,8 @@ def _add_skew(H, r0, c0, v, s):
 
 
 @njit(cache=True)
-def angle_derivatives(a, b, c, hessian=True):
+def angle_derivatives(a, b, c):
     """theta, gradient (9,) and Hessian (9, 9) with respect to (a, b, c); ok = False if degenerate.
-    Without `hessian` the Hessian is left at zero (its terms are most of the work).
 
     Hess theta = (z Hy - y Hz + gz gy^T - gy gz^T) / r2 - u (2 y gy + 2 z gz)^T / r2, with
     u = grad theta = (z gy - y gz) / r2 and r2 = y^2 + z^2; symmetrised against round-off.
@@ -127,8 +126,6 @@ def angle_derivatives(a, b, c, hessian=True):
     inv = 1.0 / r2
     for i in range(9):
         u[i] = (z * gy[i] - y * gz[i]) * inv
-    if not hessian:
-        return np.arctan2(y, z), u, H, True
     # z Hy with Hy = -(gL gp^T + gp gL^T + p HL + L Hp); gL = (a/|a|, 0, 0), HL = (I - a a^T/|a|^2)/|a|
     zL = z * L
     _add_skew(H, 0, 3, c, zL)   # -L Hp blocks: Hp[a,b] = -[c]x, Hp[b,c] = -[a]x, Hp[c,a] = -[b]x
@@ -172,6 +169,56 @@ def angle_derivatives(a, b, c, hessian=True):
 
 
 @njit(cache=True)
+def _gauss_newton_hinge_into(x0, x1, x2, x3, rest_theta, weight, grad, hess):
+    """bending_element_into's GAUSS_NEWTON case in scalars, without temporary arrays (the pop
+    filter evaluates it on thousands of hinges per Newton step): grad = w d U, hess = w U U^T,
+    U = d theta / d(x0..x3) from angle_derivatives' gradient formulas."""
+    a0, a1, a2 = x1[0] - x0[0], x1[1] - x0[1], x1[2] - x0[2]
+    b0, b1, b2 = x2[0] - x0[0], x2[1] - x0[1], x2[2] - x0[2]
+    c0, c1, c2 = x3[0] - x0[0], x3[1] - x0[1], x3[2] - x0[2]
+    L2 = a0 * a0 + a1 * a1 + a2 * a2
+    L = np.sqrt(L2)
+    bxc = (b1 * c2 - b2 * c1, b2 * c0 - b0 * c2, b0 * c1 - b1 * c0)
+    cxa = (c1 * a2 - c2 * a1, c2 * a0 - c0 * a2, c0 * a1 - c1 * a0)
+    axb = (a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0)
+    a, b, c = (a0, a1, a2), (b0, b1, b2), (c0, c1, c2)
+    p = a0 * bxc[0] + a1 * bxc[1] + a2 * bxc[2]
+    ab = a0 * b0 + a1 * b1 + a2 * b2
+    ac = a0 * c0 + a1 * c1 + a2 * c2
+    bc = b0 * c0 + b1 * c1 + b2 * c2
+    y = -L * p
+    z = ac * ab - L2 * bc
+    r2 = y * y + z * z
+    for i in range(12):
+        grad[i] = 0.0
+    if r2 < DEGENERATE_NORMAL2 or L == 0.0:
+        for i in range(12):
+            for j in range(12):
+                hess[i, j] = 0.0
+        return 0.0
+    inv = 1.0 / r2
+    for i in range(3):  # grad holds U here: U_{k+1} = u_k, U_0 = -(u_0 + u_1 + u_2)
+        gy = -(p * a[i] / L + L * bxc[i])
+        gz = c[i] * ab + b[i] * ac - 2.0 * a[i] * bc
+        grad[3 + i] = (z * gy - y * gz) * inv
+        gy = -L * cxa[i]
+        gz = a[i] * ac - c[i] * L2
+        grad[6 + i] = (z * gy - y * gz) * inv
+        gy = -L * axb[i]
+        gz = a[i] * ab - b[i] * L2
+        grad[9 + i] = (z * gy - y * gz) * inv
+        grad[i] = -(grad[3 + i] + grad[6 + i] + grad[9 + i])
+    for i in range(12):
+        wi = weight * grad[i]
+        for j in range(12):
+            hess[i, j] = wi * grad[j]
+    d = np.arctan2(y, z) - rest_theta
+    for i in range(12):
+        grad[i] *= weight * d
+    return 0.5 * weight * d * d
+
+
+@njit(cache=True)
 def bending_element_into(x0, x1, x2, x3, rest_theta, weight, project, grad, hess):
     """Hinge energy; writes the gradient (12,) and Hessian (12, 12) w.r.t. (x0..x3), returns W.
 
@@ -179,7 +226,9 @@ def bending_element_into(x0, x1, x2, x3, rest_theta, weight, project, grad, hess
     not; GAUSS_NEWTON (2), only the term w u u^T (u = d theta / dx), positive semi-definite by
     construction and about 8x cheaper than the projection (ARCSim's bending Hessian).
     """
-    theta, u, H, ok = angle_derivatives(x1 - x0, x2 - x0, x3 - x0, project != GAUSS_NEWTON)
+    if project == GAUSS_NEWTON:
+        return _gauss_newton_hinge_into(x0, x1, x2, x3, rest_theta, weight, grad, hess)
+    theta, u, H, ok = angle_derivatives(x1 - x0, x2 - x0, x3 - x0)
     for i in range(12):
         grad[i] = 0.0
         for j in range(12):
@@ -188,17 +237,6 @@ def bending_element_into(x0, x1, x2, x3, rest_theta, weight, project, grad, hess
         return 0.0
     d = theta - rest_theta
     g9 = weight * d * u
-    if project == GAUSS_NEWTON:  # w U U^T, U = d theta / d(x0..x3): PSD by construction, no eigensolve
-        for k in range(3):
-            for i in range(3):
-                grad[3 * (k + 1) + i] = g9[3 * k + i]
-                grad[i] -= g9[3 * k + i]
-        for p in range(12):
-            up = u[p - 3] if p >= 3 else -(u[p] + u[p + 3] + u[p + 6])
-            for q in range(12):
-                uq = u[q - 3] if q >= 3 else -(u[q] + u[q + 3] + u[q + 6])
-                hess[p, q] = weight * up * uq
-        return 0.5 * weight * d * d
     H9 = weight * (np.outer(u, u) + d * H)
     if project and d != 0.0 and not _is_psd(H9):
         project_psd(H9)
