@@ -250,7 +250,7 @@ def test_push_strain_is_the_largest_push_over_the_shortest_edge_at_its_node():
 
 
 def test_the_pop_filter_s_inexact_newton_solves_end_where_exact_ones_do(monkeypatch):
-    """The pop filter solves its Newton systems by PCG to NEWTON_SOLVE_TOLERANCE (1e-2): on the
+    """The pop filter solves its Newton systems by PCG to NEWTON_SOLVE_TOLERANCE (1e-4): on the
     remeshes of a sheet landing on the sphere, it ends at the energy that near-exact solves reach."""
     import cloth.remeshing.adaptive as adaptive_mod
     import cloth.remeshing.popfilter as popfilter_mod

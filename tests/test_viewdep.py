@@ -14,10 +14,6 @@ CONTACT_SLACK = 1e-9  # contact leaves nodes at the thickness up to round-off
 # of the unseen half lies beyond the margin, where nu = nu_out.
 MARGIN = "mode.view.margin=0.1"
 CUT_FRAME = 30
-# "Keeps the adaptive resolution": the seen part's verts per m^2 (material) are at least this
-# fraction of mode=adaptive's on the same region (the transition band at the frame's border and
-# the remesher's discrete choices cost some).
-KEEP_FRACTION = 0.7
 # "Coarsens to about nu_out": target edges grow 1/nu_out = 100x, far beyond what a 1 m sheet can
 # hold, so the unseen part becomes as coarse as the remesher allows: it has at least this many
 # times fewer verts than in mode=adaptive (measured: ~16x; what remains is mostly the sheet's
@@ -25,7 +21,11 @@ KEEP_FRACTION = 0.7
 COARSEN_FACTOR = 10.0
 # Edges at full resolution have s <= 1 right after a remesh; one frame of motion (and the sizing's
 # own change over it: folds deepen) stretch some past that (measured: 95th percentile 1.25). Without
-# anticipation the same edges are sized for nu_out (measured: ~20).
+# anticipation the same edges are sized for nu_out (measured: ~20). "Keeps the adaptive resolution"
+# is checked the same way: the seen part's edges measured by the view-independent sizing (95th
+# percentile 0.97-1.11 over this session's code versions; the unseen part's 4.2-4.8). Counting its
+# verts against a mode=adaptive run instead depends on where that run's folds happen to lie:
+# 1,170 to 1,455 per m^2 for round-off changes of the same code, a ratio of 0.65 to 0.80.
 FULL_RESOLUTION_S = 1.5
 
 
@@ -67,9 +67,15 @@ def adaptive_at_cut():
 
 def test_a_static_camera_on_half_the_sheet(adaptive_at_cut):
     sim = build_sim(SPHERE, "mode=viewdep", "camera=sheet_half", MARGIN)
+    from cloth.remeshing.adaptive import AdaptiveRemesher
+    from cloth.remeshing.sizing import face_edge_sizes, face_to_vert_sizing
+
     rows = [sim.advance_frame() for _ in range(CUT_FRAME)]
-    seen, seen_ref = _verts_in(sim, EAST), _verts_in(adaptive_at_cut, EAST)
-    assert seen >= KEEP_FRACTION * seen_ref, (seen, seen_ref)
+    # the seen part at full resolution: its edges as the view-independent sizing measures them
+    M = face_to_vert_sizing(sim.mesh, AdaptiveRemesher.face_sizing(sim.remesher, sim))
+    s = face_edge_sizes(sim.mesh, M)
+    assert np.quantile(s[_faces_touching(sim, EAST)], 0.95) <= FULL_RESOLUTION_S
+    assert np.quantile(s[_faces_touching(sim, WEST)], 0.95) > 2 * FULL_RESOLUTION_S  # the unseen: coarser
     unseen, unseen_ref = _verts_in(sim, WEST), _verts_in(adaptive_at_cut, WEST)
     assert unseen * COARSEN_FACTOR <= unseen_ref, (unseen, unseen_ref)
     last = rows[-1]
