@@ -114,6 +114,11 @@ class Stages:
         return replace(self, **{name: False for name in names})
 
 
+def _fading(scene: Scene) -> bool:
+    """Whether a handle of the scene fades (its springs are then a force term of the step)."""
+    return any(h.fade_time > 0 for h in scene.handles)
+
+
 def plan_stages(scene: Scene, remesher=None, buckling=None) -> Stages:
     """The one place where what a scene declares and what a mode asks for become stages.
 
@@ -128,8 +133,7 @@ def plan_stages(scene: Scene, remesher=None, buckling=None) -> Stages:
     self_collision = "self_collision" in effects
     remesh = remesher is not None
     return Stages(
-        forces=tuple(e for e in FORCE_EFFECTS if e in effects)
-        + (("handle_springs",) if any(h.fade_time > 0 for h in scene.handles) else ()),
+        forces=tuple(e for e in FORCE_EFFECTS if e in effects) + (("handle_springs",) if _fading(scene) else ()),
         damping="damping" in effects,
         remesh=remesh,
         untangle=remesh and (self_collision or meshes),
@@ -158,7 +162,7 @@ def build_force_terms(scene: Scene) -> list[ForceTerm]:
     if "wind" in scene.effects:
         w = scene.wind
         terms.append(Wind(w.velocity, w.drag, w.gust_amplitude, w.gust_frequency, w.density, w.drag_tangential))
-    if any(h.fade_time > 0 for h in scene.handles):
+    if _fading(scene):
         terms.append(HandleSprings(scene.handles))
     return terms
 
