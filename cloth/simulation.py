@@ -6,8 +6,9 @@ compensation); a stage that is not planned is never called and costs nothing. On
 DESIGN.md section 1, one named stage per line::
 
     remesh            mode=adaptive | viewdep    sizing field, remesh, pop filter
-    untangle          remesh + self_collision or mesh obstacles: after a remesh that changed the
-                      mesh (and after a frame that left crossings)
+    untangle          self_collision or mesh obstacles: in the first frame (the initial or restarted
+                      state may cross), after a remesh that changed the mesh, and after a frame
+                      that left crossings
     buckling          mode's buckling (needs a camera): compression factors of eq 11
     steps              the scene's steps_per_frame (fewer for a character wholly out of view,
                        mode=viewdep; more when scene.obstacle_step asks it of a fast obstacle)
@@ -93,7 +94,7 @@ class Stages:
     # 'handle_springs' when a handle fades (its springs after end_time)
     damping: bool = False  # Rayleigh damping in the implicit step ('damping')
     remesh: bool = False  # the mode's remesh stage (mode=adaptive, viewdep)
-    untangle: bool = False  # remove crossings after a remesh (with self_collision or triangle-mesh obstacles)
+    untangle: bool = False  # remove crossings of the start state and after a remesh (self_collision or mesh obstacles)
     buckling: bool = False  # compression factors of the out-of-frustum faces (the mode's buckling)
     obstacle_contact: bool = False  # node contact with every obstacle, in the solve and after it ('obstacles')
     obstacle_ccd: bool = False  # cloth against triangle-mesh obstacles: proximity, CCD, impact zones
@@ -124,8 +125,9 @@ def plan_stages(scene: Scene, remesher=None, buckling=None) -> Stages:
 
     Scene effects: membrane, bending, gravity, wind (force terms), damping, obstacles (node
     contact with every obstacle; with triangle-mesh obstacles and a thickness > 0, also their
-    triangles in the step's collision pass), self_collision, strain_limiting. Mode: a remesher (remesh, and
-    untangling after it where crossings can arise), buckling parameters (buckling).
+    triangles in the step's collision pass), self_collision, strain_limiting; untangling wherever
+    crossings can arise (self_collision or mesh obstacles: a start state, a remesh). Mode: a
+    remesher (remesh), buckling parameters (buckling).
     """
     effects = scene.effects
     obstacles = "obstacles" in effects
@@ -136,7 +138,7 @@ def plan_stages(scene: Scene, remesher=None, buckling=None) -> Stages:
         forces=tuple(e for e in FORCE_EFFECTS if e in effects) + (("handle_springs",) if _fading(scene) else ()),
         damping="damping" in effects,
         remesh=remesh,
-        untangle=remesh and (self_collision or meshes),
+        untangle=self_collision or meshes,
         buckling=buckling is not None,
         obstacle_contact=obstacles,
         obstacle_ccd=meshes and scene.thickness > 0,
@@ -214,6 +216,7 @@ class Simulation:
         self.dt = scene.dt  # s: this frame's step (a view-dependent run may take fewer, longer steps out of view)
         self._substep = 0  # steps taken in the current frame
         self.intersections_pending = 0  # crossings the last untangling left (it runs again next frame)
+        self.untangle_due = True  # the start state has not been checked for crossings yet
         self.faces_compensated = 0
         self.last_energy: dict = {}
         self.rebuild()
@@ -225,7 +228,7 @@ class Simulation:
         self.__dict__.update(state)
         if "stages" not in state:
             self.stages = plan_stages(self.scene, self.remesher, self.buckling)
-        for name, value in (("faces_compensated", 0), ("intersections_pending", 0)):
+        for name, value in (("faces_compensated", 0), ("intersections_pending", 0), ("untangle_due", False)):
             self.__dict__.setdefault(name, value)
 
     @property
@@ -293,6 +296,7 @@ class Simulation:
         self.steps_taken = frame * scene.steps_per_frame  # as if every frame took the scene's steps
         self.dt, self._substep = scene.dt, 0
         self.intersections_pending = 0
+        self.untangle_due = True  # the state may cross (another run's, transferred to this mesh)
         self._inside_at_start = None
         self.rebuild()
         if self.stages.obstacle_contact:
@@ -332,9 +336,10 @@ class Simulation:
                  **REMESH_RECORD, **VIEW_RECORD, **COLLISION_RECORD, **STRAIN_LIMIT_RECORD}
         stages = self.stages
         changed = stages.remesh and self.remesher.remesh(self, timings, stats)
-        if stages.untangle and (changed or self.intersections_pending > 0):
-            # after a remesh that changed the mesh, and in every frame after one that left
-            # crossings (the record then says what is still left, not 0)
+        if stages.untangle and (changed or self.untangle_due or self.intersections_pending > 0):
+            # the start state (a fixed mesh made from a coarse garment can cross a body between
+            # its nodes), after a remesh that changed the mesh, and in every frame after one that
+            # left crossings (the record then says what is still left, not 0)
             self._timed(timings, "collisions", self.untangle, stats)
         if stages.buckling:
             self._timed(timings, "sizing", self.update_buckling)
@@ -530,12 +535,13 @@ class Simulation:
 
     def untangle(self, stats: dict) -> None:
         """Remove crossings of the cloth with itself (with 'self_collision') and with triangle-mesh
-        obstacles (after a remesh); only the cloth moves. Counts into `stats`."""
+        obstacles (in the start state, after a remesh); only the cloth moves. Counts into `stats`."""
         mesh = self.scene.mesh
         s = untangle(mesh.face_nodes, mesh.node_x, mesh.node_m, mesh.node_pinned, self.scene.thickness,
                      UNTANGLE_ITERATIONS, obstacles=self._mesh_obstacle_triangles())
         stats.update(s)
         self.intersections_pending = int(s["intersections_left"])
+        self.untangle_due = False
 
     def _check(self, stats: dict) -> None:
         mesh = self.scene.mesh

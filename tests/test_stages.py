@@ -73,7 +73,7 @@ def test_a_stage_runs_exactly_when_the_scene_or_mode_asks_for_it(monkeypatch, na
     assert stages.self_collision == ("self_collision" in effects)
     assert stages.obstacle_ccd == meshes
     assert stages.remesh == (mode != "nonadaptive") and stages.buckling == (mode == "viewdep")
-    assert stages.untangle == (stages.remesh and (stages.self_collision or meshes))
+    assert stages.untangle == (stages.self_collision or meshes)
     for _ in range(2):
         sim.advance_frame()
     steps = 2 * sim.scene.steps_per_frame
@@ -92,6 +92,8 @@ def test_a_stage_runs_exactly_when_the_scene_or_mode_asks_for_it(monkeypatch, na
     assert (calls["buckling"] >= 2) if stages.buckling else (calls["buckling"] == 0)
     if not stages.untangle:
         assert calls["untangle"] == 0
+    elif not stages.remesh:  # a fixed mesh checks its (clean) start state once, and never again
+        assert calls["untangle"] == 1
 
 
 def test_an_effect_left_out_of_the_list_costs_nothing(monkeypatch):
@@ -130,6 +132,7 @@ def test_plan_is_a_pure_function_of_scene_and_mode():
     mesh_scene = build_scene("mesh_obstacle", COTTON, resolution=4, sphere_subdivisions=1, thickness=0.0)
     assert not plan_stages(mesh_scene).obstacle_ccd and plan_stages(mesh_scene).obstacle_contact
     assert plan_stages(mesh_scene, AdaptiveRemesher()).untangle  # crossings with the mesh can still arise
+    assert plan_stages(mesh_scene).untangle  # and a fixed mesh's start state may cross it
 
 
 def test_a_simulation_pickled_before_the_stage_plan_gets_its_plan_back():

@@ -1,12 +1,16 @@
 """Interpenetration recovery in the frame loop (paper section 3.4): after a remesh the adaptive
-modes untangle crossings by contour minimisation, and a run whose untangling cannot finish goes
+modes untangle crossings by contour minimisation, every mode untangles a start state that
+crosses (a fixed mesh around a body), and a run whose untangling cannot finish goes
 on from its best state and says in every frame's record what is left (it never aborts)."""
 
 import numpy as np
 import pytest
-from helpers import build_sim, count_crossings
+from helpers import COTTON, build_sim, count_crossings
 
 import cloth.simulation as simulation
+from cloth.collision.meshobstacle import TriangleMeshObstacle, mesh_obstacle_triangles
+from cloth.collision.untangle import find_intersections
+from cloth.scenes.registry import build_scene
 
 LAYERED = ("scene=layered_sheets", "output.rerun=false")
 BUMP_DEPTH = 0.02  # m below the lower sheet: a closed crossing well within the untangling's move bound
@@ -62,3 +66,41 @@ def test_a_run_whose_untangling_cannot_finish_goes_on_and_records_what_is_left(m
     monkeypatch.setattr(simulation, "UNTANGLE_ITERATIONS", 30)
     rec = sim.advance_frame()
     assert rec["intersections_left"] == 0 and count_crossings(sim.mesh) == 0
+
+
+# A sheet of 25 nodes (0.25 m apart) lowered onto the mesh_obstacle scene's icosphere (radius
+# 0.25 m, top at z = 0.5 m) so that the sphere's cap pokes through the faces around its top
+# while every node stays outside: the crossing a coarse fixed garment can start with around a body.
+CAP_HEIGHT = 0.02  # m of the sphere above the sheet
+SHEET_SHIFT = (0.1, 0.08)  # m: no node or edge right over the sphere's top
+
+
+def test_a_fixed_mesh_run_untangles_a_start_state_that_crosses_a_mesh_obstacle(monkeypatch):
+    scene = build_scene("mesh_obstacle", COTTON, resolution=4)
+    (sphere,) = [o for o in scene.obstacles if isinstance(o, TriangleMeshObstacle)]
+    x = scene.mesh.node_x
+    x[:, :2] += SHEET_SHIFT
+    x[:, 2] = sphere.positions[:, 2].max() - CAP_HEIGHT
+    assert sphere.query(x)[0].min() > scene.thickness  # no node is inside or near the sphere
+
+    def crossings():
+        (ox, of), = mesh_obstacle_triangles([sphere])
+        n = len(scene.mesh.face_nodes)
+        pairs = find_intersections(np.vstack([scene.mesh.face_nodes, of + len(x)]),
+                                   np.vstack([scene.mesh.node_x, ox]), n_fixed_faces=len(of))[0]
+        return int(np.count_nonzero(pairs[:, 1] >= n)) if len(pairs) else 0
+
+    assert crossings() > 0
+    calls = []
+    original = simulation.Simulation.untangle
+    monkeypatch.setattr(simulation.Simulation, "untangle",
+                        lambda self, stats: (calls.append(self.frame), original(self, stats)))
+    sim = simulation.Simulation(scene)  # mode=nonadaptive: no remesher
+    assert sim.stages.untangle and not sim.stages.remesh
+    rec = sim.advance_frame()
+    assert rec["intersections_found"] > 0 and rec["intersections_left"] == 0
+    assert crossings() == 0
+    for _ in range(2):
+        sim.advance_frame()
+        assert crossings() == 0
+    assert calls == [0]  # the start state only: nothing was left for later frames
