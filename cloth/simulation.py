@@ -204,7 +204,8 @@ class Simulation:
         self.obstacle_set = ObstacleSet(scene.obstacles) if self.stages.obstacle_contact else None
         self.mesh_obstacles = mesh_obstacles(scene.obstacles) if self.stages.obstacle_contact else []
         self_friction = scene.friction if scene.self_friction is None else scene.self_friction
-        self.self_collision = (SelfCollisionParams(thickness=scene.thickness, friction=self_friction)
+        self.self_collision = (SelfCollisionParams(thickness=scene.thickness, friction=self_friction,
+                                                   self_thickness=scene.self_thickness)
                                if self.stages.self_collision else None)
         self.mesh_collision = (self.self_collision or SelfCollisionParams(thickness=scene.thickness,
                                                                           friction=scene.friction)

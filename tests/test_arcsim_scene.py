@@ -77,6 +77,11 @@ def test_the_scene_is_what_the_conf_says(tmp_path):
     assert scene.effects == {"membrane", "bending", "gravity", "wind", "obstacles", "self_collision"}
     assert scene.material.density == pytest.approx(0.4)  # 0.2 kg/m^2 x thicken 2
     assert scene.thickness == 5e-3 and scene.friction == 0.3 and scene.self_friction == 0.6  # ARCSim's defaults
+    # between cloth layers ARCSim's hard projection thickness: 0.1 x the repulsion thickness
+    assert scene.self_thickness == pytest.approx(5e-4)
+    assert not any("projection_thickness" in n for n in scene.notes)
+    given = _write_scene(tmp_path / "given", magic={"repulsion_thickness": 5e-3, "projection_thickness": 1e-3})
+    assert arcsim_scene(conf=str(given)).self_thickness == pytest.approx(1e-3)
     assert [h.nodes.tolist() for h in scene.handles] == [[2], [3]] and scene.handles[0].end_time == 0.1
     assert scene.wind.density == 1.0 and scene.wind.drag == 0.0
     assert any("collision_stiffness" in n for n in scene.notes)

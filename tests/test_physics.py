@@ -431,3 +431,12 @@ def test_a_solve_stopped_at_its_iteration_cap_is_recorded_and_noted(tmp_path):
         assert summary["solves_capped_total"] == int(frames["solves_capped"].sum())
         notes = json.loads((out / "summary.json").read_text())["notes"]
         assert any("iteration cap (solver.max_iterations = 2)" in n for n in notes) == capped
+
+
+def test_a_scene_with_a_bad_self_thickness_is_named():
+    from cloth.core.scene import SceneError
+
+    for bad in (0.0, -1e-3):
+        with pytest.raises(SceneError, match="self_thickness"):
+            Scene("layers", grid_mesh(0.6, 0.6, 2, 2), COTTON, {"membrane"}, frame_time=1 / 30, steps_per_frame=1,
+                  self_thickness=bad)

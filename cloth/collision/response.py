@@ -30,6 +30,19 @@ from cloth.collision.ccd import (
 # A proximity pair closer than this fraction of the thickness has no reliable direction at x1:
 # it takes its direction from x0.
 DEGENERATE_FRACTION = 1e-6
+# Cloth-cloth proximity acts across the surfaces only, as ARCSim's does: a vertex-face pair
+# whose node projects into the face (plane barycentric weights >= -INTERIOR_TOLERANCE, round-off
+# on a shared edge), an edge-edge pair whose closest points lie inside both edges. Otherwise the
+# closest point is on the face's rim or an edge's end and the push runs along the sheet: on a
+# mesh a few thicknesses fine, a node and a face two rings away lie closer than the thickness
+# in the sheet's own plane, and pushing them apart stretched the cloth (ARCSim's sphere.json at
+# its own sizes: Green strains of 2 to 9 by the pins, against ARCSim's 0.7). For the same reason
+# an edge-edge pair of (nearly) parallel edges, sin^2 of their angle below PARALLEL_SIN2, is left
+# out: their closest points are not unique and may lie side by side in the sheet. Neighbouring
+# pairs cover what these leave out, and CCD still sees every crossing. Pairs with an obstacle
+# node keep the closest-point distance (a body's tip or ridge must push the cloth).
+INTERIOR_TOLERANCE = 1e-6
+PARALLEL_SIN2 = 1e-6
 
 
 @njit(cache=True)
@@ -132,6 +145,31 @@ def _lerp(x0, x1, i, t):
 
 
 @njit(cache=True)
+def _projects_inside(p, a, b, c):
+    """Whether p's projection onto the plane of triangle abc lies in the triangle (to
+    INTERIOR_TOLERANCE in barycentric weight); False for a degenerate triangle."""
+    n = np.cross(b - a, c - a)
+    nn = np.dot(n, n)
+    if nn == 0.0:
+        return False
+    b0 = np.dot(np.cross(b - p, c - p), n) / nn
+    b1 = np.dot(np.cross(c - p, a - p), n) / nn
+    return min(b0, b1, 1.0 - b0 - b1) >= -INTERIOR_TOLERANCE
+
+
+@njit(cache=True)
+def _across(x, p, q, P, Q, w):
+    """Whether the edge-edge pair's closest points lie inside both edges (weights w of
+    `_ee_geometry`) and the edges are not parallel (PARALLEL_SIN2)."""
+    if not (0.0 < w[1] < 1.0 and 0.0 < -w[3] < 1.0):
+        return False
+    e1 = x[q] - x[p]
+    e2 = x[Q] - x[P]
+    c = np.cross(e1, e2)
+    return np.dot(c, c) >= PARALLEL_SIN2 * np.dot(e1, e1) * np.dot(e2, e2)
+
+
+@njit(cache=True)
 def _vf_geometry(x, i, a, b, c):
     """Distance, weights (1, -w0, -w1, -w2) and unit direction from the face to the node."""
     dist, w0, w1, w2 = point_triangle_closest(x[i], x[a], x[b], x[c])
@@ -155,9 +193,10 @@ def _ee_geometry(x, p, q, P, Q):
 
 
 @njit(cache=True)
-def proximity_repulsion(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, h, mu, passes, first_fixed):
-    """Repulsion passes; returns the numbers of pairs found closer than h in the first pass:
-    (pairs of cloth nodes only, pairs with an obstacle node: index >= first_fixed)."""
+def proximity_repulsion(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, h_obstacle, h_self, mu, passes, first_fixed):
+    """Repulsion passes; returns the numbers of pairs found closer than their thickness in the
+    first pass: (pairs of cloth nodes only, kept h_self apart; pairs with an obstacle node, index
+    >= first_fixed, kept h_obstacle apart)."""
     idx = np.empty(4, dtype=np.int64)
     first = 0
     first_obstacle = 0
@@ -167,6 +206,8 @@ def proximity_repulsion(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, h, mu, pa
         for k in range(vf.shape[0]):
             i, f = vf[k, 0], vf[k, 1]
             a, b, c = face_nodes[f, 0], face_nodes[f, 1], face_nodes[f, 2]
+            cloth = max(i, a, b, c) < first_fixed
+            h = h_self if cloth else h_obstacle
             if _boxes_apart(x1, x1, i, i, -1, a, b, c, -1, h):
                 continue
             if vf_separated(x1[i], x1[a], x1[b], x1[c], x1[i], x1[a], x1[b], x1[c], h):
@@ -174,8 +215,10 @@ def proximity_repulsion(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, h, mu, pa
             dist, w, n = _vf_geometry(x1, i, a, b, c)
             if dist >= h:
                 continue
+            if cloth and not _projects_inside(x1[i], x1[a], x1[b], x1[c]):
+                continue  # along the sheet, not across it (INTERIOR_TOLERANCE)
             count += 1
-            if max(i, a, b, c) >= first_fixed:
+            if not cloth:
                 count_obstacle += 1
             if dist < DEGENERATE_FRACTION * h:
                 d0, w0_, n = _vf_geometry(x0, i, a, b, c)
@@ -189,6 +232,8 @@ def proximity_repulsion(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, h, mu, pa
         for k in range(ee.shape[0]):
             e1, e2 = ee[k, 0], ee[k, 1]
             p, q, P, Q = edge_nodes[e1, 0], edge_nodes[e1, 1], edge_nodes[e2, 0], edge_nodes[e2, 1]
+            cloth = max(p, q, P, Q) < first_fixed
+            h = h_self if cloth else h_obstacle
             if _boxes_apart(x1, x1, p, q, -1, P, Q, P, -1, h):
                 continue
             if ee_separated(x1[p], x1[p], x1[q], x1[q], x1[P], x1[P], x1[Q], x1[Q], h):
@@ -196,8 +241,10 @@ def proximity_repulsion(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, h, mu, pa
             dist, w, n = _ee_geometry(x1, p, q, P, Q)
             if dist >= h:
                 continue
+            if cloth and not _across(x1, p, q, P, Q, w):
+                continue  # closest at an edge's end, or parallel edges: the vertex-face pairs cover it
             count += 1
-            if max(p, q, P, Q) >= first_fixed:
+            if not cloth:
                 count_obstacle += 1
             if dist < DEGENERATE_FRACTION * h:
                 d0, w0_, n = _ee_geometry(x0, p, q, P, Q)

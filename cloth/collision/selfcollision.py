@@ -70,8 +70,11 @@ CCD_SEPARATION_FRACTION = 0.1
 
 @dataclass(frozen=True)
 class SelfCollisionParams:
-    thickness: float  # m, distance kept between cloth surfaces
+    thickness: float  # m, distance kept between cloth surfaces (and from obstacles)
     friction: float = 0.3  # Coulomb coefficient, cloth against cloth
+    # m kept between two cloth primitives where it differs from `thickness` (obstacle pairs keep
+    # `thickness`); None: `thickness`
+    self_thickness: float | None = None
     proximity_passes: int = 2  # Gauss-Seidel passes of the repulsion
     ccd_passes: int = 3  # Gauss-Seidel CCD passes before rigid impact zones
     # impact-zone rounds before giving up (the record says what is left). Rounds run only while
@@ -83,6 +86,8 @@ class SelfCollisionParams:
     def __post_init__(self):
         if not self.thickness > 0:
             raise ValueError(f"self-collision thickness must be > 0, got {self.thickness}")
+        if self.self_thickness is not None and not self.self_thickness > 0:
+            raise ValueError(f"self-collision self_thickness must be > 0 or None, got {self.self_thickness}")
         if self.friction < 0:
             raise ValueError(f"self-collision friction must be >= 0, got {self.friction}")
         for name in ("proximity_passes", "ccd_passes", "max_zone_passes"):
@@ -104,7 +109,8 @@ def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, 
     `skip` (N,) bool: cloth nodes left out of the pairs with obstacle nodes. The record then
     counts the pairs with an obstacle node apart (OBSTACLE_RECORD); the self_ keys count the rest.
     """
-    h = params.thickness
+    h = params.thickness  # pairs with an obstacle node; the broad phase pads by it
+    h_self = h if params.self_thickness is None else min(float(params.self_thickness), h)  # cloth-cloth pairs
     inv_m = np.where(pinned, 0.0, 1.0 / node_m)
     N = x0.shape[0]
     first_fixed = N if first_fixed is None else int(first_fixed)
@@ -129,8 +135,8 @@ def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, 
         if n_fixed_faces:
             stats[key_obstacle] = n_obstacle
 
-    eta = CCD_ETA_FRACTION * h
-    sep = CCD_SEPARATION_FRACTION * h
+    eta = CCD_ETA_FRACTION * h_self  # the thinner layer's: a touch of either kind, a correction that
+    sep = CCD_SEPARATION_FRACTION * h_self  # puts no pair beyond its own thickness
     # 1. proximity at the proposed end positions. Its face pairs come from boxes over the whole
     # step padded by h, so that the first CCD pass can reuse them: the proximity moves no
     # coordinate by more than delta, its boxes over the step grow by at most delta, and face
@@ -141,8 +147,8 @@ def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, 
         fp = overlapping_face_pairs(boxes[2], boxes[3], h, n_fixed_faces, self_pairs)
         vf, ee = pairs(x1, None, h, fp)
         x_prox = x1.copy()
-        n_self, n_obstacle = proximity_repulsion(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, h, params.friction,
-                                                 int(params.proximity_passes), first_fixed)
+        n_self, n_obstacle = proximity_repulsion(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, h, h_self,
+                                                 params.friction, int(params.proximity_passes), first_fixed)
         stats["self_proximity"] = int(n_self)
         if n_fixed_faces:
             stats["obstacle_proximity"] = int(n_obstacle)

@@ -143,6 +143,9 @@ class Scene:
     thickness: float = 0.005  # m, contact offset kept between cloth and obstacles, and between cloth layers
     friction: float = 0.3  # Coulomb coefficient, cloth against obstacles (and against itself unless self_friction)
     self_friction: float | None = None  # Coulomb coefficient, cloth against cloth; None: `friction`
+    # m kept between cloth layers, where it differs from `thickness` (ARCSim's scenes: its hard
+    # projection thickness, 0.1 x the repulsion thickness); None: `thickness`
+    self_thickness: float | None = None
     # Substeps for fast obstacles: a frame takes enough steps that no triangle-mesh obstacle vertex
     # moves more than this fraction of `thickness` in one step (at least steps_per_frame); None: off.
     obstacle_step: float | None = None
@@ -184,6 +187,8 @@ class Scene:
             raise SceneError(f"scene {self.name!r}: obstacle_step must be > 0 (a fraction of the thickness) or None")
         if self.thickness < 0 or self.friction < 0 or (self.self_friction is not None and self.self_friction < 0):
             raise SceneError(f"scene {self.name!r}: thickness, friction and self_friction must be >= 0")
+        if self.self_thickness is not None and not self.self_thickness > 0:
+            raise SceneError(f"scene {self.name!r}: self_thickness must be > 0 m or None, got {self.self_thickness!r}")
         self.mesh.update_rest_data(self.material.density)
         for handle in self.handles:
             handle.check(f"scene {self.name!r}")

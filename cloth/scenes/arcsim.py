@@ -30,10 +30,14 @@
   (``scene.effects``) keeps only those of them, e.g. a run without self-collision; an effect
   the conf does not call for is refused.
 * ``friction`` is the cloth-cloth coefficient, ``obs_friction`` the cloth-obstacle one; magic
-  ``repulsion_thickness`` is the contact thickness. Magic numbers without a counterpart here are
-  said in the scene's notes when the conf changes them from ARCSim's defaults (``collision_stiffness``
-  and ``handle_stiffness`` outside a handle's fade: contacts and pinned handles are exact
-  constraints here, with no penalty stiffness; ``projection_thickness``), and refused when they
+  ``repulsion_thickness`` is the thickness kept from obstacles, ``projection_thickness`` (ARCSim's
+  hard collision layer, 0.1 x the repulsion thickness unless given) the one kept between cloth
+  layers. ARCSim keeps its repulsion thickness with a penalty, which a tight fold can overcome;
+  here contacts are exact, and 5 mm held between the sides of a fold on ARCSim's own 5 mm
+  elements stretched the cloth there to Green strains of 3. Magic numbers without a counterpart
+  here are said in the scene's notes when the conf changes them from ARCSim's defaults
+  (``collision_stiffness`` and ``handle_stiffness`` outside a handle's fade: contacts and pinned
+  handles are exact constraints here, with no penalty stiffness), and refused when they
   ask for something this tool does not do (``rib_stiffening`` other than 1, ``preserve_creases``,
   ``fixed_high_res_mesh``). Disabling ``physics`` is refused; ``remeshing`` and ``popfilter`` act on the mode
   (:func:`arcsim_remesher_overrides`).
@@ -83,7 +87,6 @@ MAGIC_REFUSED = {"rib_stiffening": 1.0, "preserve_creases": False, "fixed_high_r
 MAGIC_NOTED = {
     "collision_stiffness": "contacts are exact constraints here (no repulsion penalty stiffness)",
     "handle_stiffness": "pinned handles are exact constraints here (it is the fading spring's stiffness only)",
-    "projection_thickness": "obstacle contacts are projected to the repulsion thickness",
     "edge_flip_threshold": "the mode's remesh.flip_threshold applies",
     "combine_tensors": "the mode's sizing.combine applies",
 }
@@ -351,5 +354,6 @@ def arcsim_scene(material=None, *, conf: str | None = None, root: str | None = N
                  gravity=tuple(float(g) for g in cfg.gravity), wind=wind,
                  obstacles=[obstacle] if obstacle is not None and "obstacles" in scene_effects else [],
                  handles=handles, thickness=float(cfg.magic["repulsion_thickness"]),
+                 self_thickness=float(cfg.magic["projection_thickness"]),
                  friction=float(cfg.obs_friction), self_friction=float(cfg.friction), notes=notes,
                  obstacle_step=OBSTACLE_STEP if obstacle is not None else None)
