@@ -8,7 +8,7 @@ DESIGN.md section 1, one named stage per line::
     remesh            mode=adaptive | viewdep    sizing field, remesh, pop filter
     untangle          self_collision or mesh obstacles: in the first frame (the initial or restarted
                       state may cross), after a remesh that changed the mesh, and after a frame
-                      that left crossings
+                      that left crossings or whose collision passes left collisions
     buckling          mode's buckling (needs a camera): compression factors of eq 11
     steps              the scene's steps_per_frame (fewer for a character wholly out of view,
                        mode=viewdep; more when scene.obstacle_step asks it of a fast obstacle)
@@ -351,6 +351,10 @@ class Simulation:
         stats["steps"] = n_steps
         for _ in range(n_steps):
             self.step(timings, stats)
+        if stats["self_collisions_left"] > 0 or stats["obstacle_collisions_left"] > 0:
+            # a collision pass gave up: the cloth may now cross itself or a body (a fixed dress
+            # kept 12 such crossings for 165 frames); the next frame looks for them first
+            self.untangle_due = True
         self.frame += 1
         record = self.state_record()
         record.update(stats)

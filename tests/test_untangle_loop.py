@@ -104,3 +104,26 @@ def test_a_fixed_mesh_run_untangles_a_start_state_that_crosses_a_mesh_obstacle(m
         sim.advance_frame()
         assert crossings() == 0
     assert calls == [0]  # the start state only: nothing was left for later frames
+
+
+def test_a_frame_whose_collision_pass_gave_up_is_followed_by_an_untangling(monkeypatch):
+    """A fixed mesh untangles only its start state, unless a step's collision response leaves
+    collisions: then the next frame looks for crossings first."""
+    calls = []
+    original = simulation.Simulation.untangle
+    monkeypatch.setattr(simulation.Simulation, "untangle",
+                        lambda self, stats: (calls.append(self.frame), original(self, stats)))
+    real = simulation.resolve_self_collisions
+    give_up = {"frame": 1}
+
+    def response(*a, **k):
+        s = real(*a, **k)
+        if sim.frame == give_up["frame"]:
+            s["self_collisions_left"] = 1  # as when the impact-zone rounds run out
+        return s
+
+    monkeypatch.setattr(simulation, "resolve_self_collisions", response)
+    sim = build_sim(*LAYERED, "mode=nonadaptive")
+    for _ in range(4):
+        sim.advance_frame()
+    assert calls == [0, 2]  # the start state, and the frame after the one that gave up

@@ -6,8 +6,9 @@ Every correction enforces a constraint on the four nodes idx of a pair, n . sum_
 by a mass-weighted move along n (`_apply`), followed in the proximity stage by Coulomb friction
 on the pair's relative tangential motion over the step (`_friction`).
 
-* `proximity_repulsion`: Gauss-Seidel passes that push the pairs closer than the thickness h at
-  the end positions x1 apart to h, on the side they were on at x0;
+* `proximity_repulsion`: Gauss-Seidel passes that push the pairs closer than their thickness at
+  the end positions x1 apart to it, on the side they were on at x0 (cloth-cloth pairs across
+  the sheets only, INTERIOR_TOLERANCE; a thickness for them and one for obstacle pairs);
 * `ccd_pass`: one Gauss-Seidel pass of continuous collision detection (cloth.collision.ccd) over
   the linear motion x0 -> x1: each pair that touches is listed and, if asked, corrected to end a
   small separation apart on its starting side.

@@ -6,7 +6,8 @@ positions x1 the integrator proposes at its end, `resolve_self_collisions` chang
 
 1. **proximity**: vertex-face and edge-edge pairs closer than the thickness at x1 are pushed
    apart to the thickness on the side they were on at x0 (mass-weighted, with the primitives'
-   barycentric weights, so a pair that crossed during the step is pushed back), with
+   barycentric weights, so a pair that crossed during the step is pushed back; two cloth
+   primitives only across the sheets, by `self_thickness` when given), with
    Coulomb friction on their relative tangential motion over the step;
 2. **continuous collision detection**: every vertex-face and edge-edge pair that touches
    during the linear motion x0 -> x1 (roots of the coplanarity cubic, `cloth.collision.ccd`) is given a
