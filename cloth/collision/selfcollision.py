@@ -73,8 +73,8 @@ CCD_SEPARATION_FRACTION = 0.1
 class SelfCollisionParams:
     thickness: float  # m, distance kept between cloth surfaces (and from obstacles)
     friction: float = 0.3  # Coulomb coefficient, cloth against cloth
-    # m kept between two cloth primitives where it differs from `thickness` (obstacle pairs keep
-    # `thickness`); None: `thickness`
+    # m kept between two cloth primitives where it differs from `thickness` (at most `thickness`:
+    # the broad phase pads by it; obstacle pairs keep `thickness`); None: `thickness`
     self_thickness: float | None = None
     proximity_passes: int = 2  # Gauss-Seidel passes of the repulsion
     ccd_passes: int = 3  # Gauss-Seidel CCD passes before rigid impact zones
