@@ -94,7 +94,7 @@ class Stages:
     # 'handle_springs' when a handle fades (its springs after end_time)
     damping: bool = False  # Rayleigh damping in the implicit step ('damping')
     remesh: bool = False  # the mode's remesh stage (mode=adaptive, viewdep)
-    untangle: bool = False  # remove crossings (self_collision or mesh obstacles): start state, remesh, given-up collisions
+    untangle: bool = False  # remove crossings (self_collision, mesh obstacles): start, remesh, given-up collisions
     buckling: bool = False  # compression factors of the out-of-frustum faces (the mode's buckling)
     obstacle_contact: bool = False  # node contact with every obstacle, in the solve and after it ('obstacles')
     obstacle_ccd: bool = False  # cloth against triangle-mesh obstacles: proximity, CCD, impact zones
