@@ -1,0 +1,193 @@
+"""Whether a run's saved cloth states cross themselves or their obstacles: the check behind "nothing
+left intersecting", from the run's own files, without re-simulating.
+
+    python -m experiments.check_crossings RUN_DIR [--out DIR] [--frames a:b]
+
+RUN_DIR is a run folder of ``python -m experiments.run`` with per-frame states
+(``output.states_every=N``; a crowd's ``dancer_*/states`` are checked character by character).
+
+**Per state** (crossings.csv), on the positions the state holds (cloth.io.states):
+
+* ``self_pairs``, ``self_length_m``: cloth face pairs that cross each other (a triangle's edge
+  through the other triangle; faces sharing a node excluded), and the total length of their
+  intersection segments (cloth.collision.untangle.find_intersections, the test the untangling
+  stage itself uses);
+* ``obstacle_pairs``, ``obstacle_length_m``: cloth faces crossing a triangle of a mesh obstacle
+  (a body mesh, a ground plane's square), the same test;
+* ``nodes_inside``: cloth nodes inside a capsule obstacle (a capsule body, a sphere), and
+  ``deepest_m`` the deepest of them (0 when none); a capsule is tested against the nodes only;
+* ``clearance_m``: the distance from the cloth's nodes to the nearest obstacle surface (the
+  exact point-to-triangle distance to mesh obstacles, the distance to the capsules' surfaces);
+  blank for a scene without obstacles.
+
+**Frame 0** is the state before the first step, and so before the start state's untangling (a
+scene's start mesh may cross its obstacles; the first frame removes that): it is listed, and the
+verdict covers the frames after it.
+
+**Writes** into ``--out`` (default RUN_DIR/check_crossings): ``crossings.csv`` and
+``summary.json`` (states checked, frames with crossings as ranges, largest counts, smallest
+clearance), and prints the frames that cross, or that none does. Exit code 0 when no state after
+frame 0 crosses, 1 when one does, 2 for a bad input (a folder without states, an unreadable state
+file, ``--frames`` selecting none), named before any work.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from cloth.collision.nearest import point_mesh_distance
+from cloth.collision.obstacles import CapsuleUnion
+from cloth.collision.untangle import find_intersections
+from cloth.io.manifest import write_json_atomic, write_text_atomic
+from cloth.io.states import StateError, load_state
+from experiments.accuracy import state_files
+from experiments.compare_arcsim import CompareError, parse_frames, ranges
+
+DEFAULT_OUT = "check_crossings"
+COLUMNS = ("frame", "time_s", "faces", "self_pairs", "self_length_m", "obstacle_pairs", "obstacle_length_m",
+           "nodes_inside", "deepest_m", "clearance_m")
+
+
+class CheckError(ValueError):
+    """A bad input of the check; the message names it."""
+
+
+def check_state(state: dict) -> dict:
+    """The crossings of one state (load_state's arrays): the columns of crossings.csv but frame
+    and time."""
+    x, faces = state["node_x"], state["face_nodes"]
+    self_pairs, self_length, _ = find_intersections(faces, x)
+    ox, of = state["obstacle_x"], state["obstacle_faces"]
+    obstacle_pairs, obstacle_length = 0, 0.0
+    clearance = math.inf
+    if of.shape[0]:
+        pairs, length, _ = find_intersections(np.vstack([faces, of + x.shape[0]]), np.vstack([x, ox]),
+                                              n_fixed_faces=of.shape[0])
+        obstacle_pairs, obstacle_length = len(pairs), float(length.sum())
+        clearance = float(point_mesh_distance(x, ox, of).min()) if x.shape[0] else math.inf
+    inside, deepest = 0, 0.0
+    if state["capsule_radii"].shape[0] and x.shape[0]:
+        capsules = CapsuleUnion(state["capsule_ends"], state["capsule_radii"])
+        phi = capsules.query(x)[0]
+        inside = int(np.sum(phi < 0.0))
+        deepest = float(max(0.0, -phi.min()))
+        clearance = min(clearance, float(max(phi.min(), 0.0)))
+    return {"faces": int(faces.shape[0]), "self_pairs": len(self_pairs), "self_length_m": float(self_length.sum()),
+            "obstacle_pairs": obstacle_pairs, "obstacle_length_m": obstacle_length, "nodes_inside": inside,
+            "deepest_m": deepest, "clearance_m": clearance if math.isfinite(clearance) else None}
+
+
+def check_run(run_dir: Path, frames: str | None = None) -> pd.DataFrame:
+    """One row per saved state of `run_dir` within `frames` (a crowd: its characters' counts
+    summed, the smallest clearance); CheckError names a bad input."""
+    if not run_dir.is_dir():
+        raise CheckError(f"run folder {run_dir} does not exist")
+    try:
+        first, last = parse_frames(frames)
+    except CompareError as exc:
+        raise CheckError(str(exc)) from None
+    available = state_files(run_dir)
+    if not available:
+        raise CheckError(f"{run_dir} has no states/frame_NNNNN.npz: run it with output.states_every=N")
+    chosen = {k: v for k, v in available.items() if first <= k <= last}
+    if not chosen:
+        raise CheckError(f"--frames {frames}: none of the saved states ({ranges(available)}) is in it")
+    rows = []
+    for frame, paths in chosen.items():
+        parts = []
+        for path in paths:
+            try:
+                state = load_state(path)
+            except StateError as exc:
+                raise CheckError(str(exc)) from None
+            parts.append(check_state(state))
+        row = {"frame": frame, "time_s": state["time"]}
+        for key in COLUMNS[2:]:
+            values = [p[key] for p in parts if p[key] is not None]
+            if key == "clearance_m":
+                row[key] = min(values) if values else None
+            elif key == "deepest_m":
+                row[key] = max(values)
+            else:
+                row[key] = sum(values)
+        rows.append(row)
+    return pd.DataFrame(rows, columns=list(COLUMNS))
+
+
+def frame_list(frames) -> str:
+    """Frame numbers compactly: evenly spaced ones as 'a-b every n' (states saved every n frames),
+    others as ranges ('0, 2-4, 7'); '' for none."""
+    frames = sorted(int(f) for f in frames)
+    steps = set(np.diff(frames).tolist())
+    if len(frames) > 2 and len(steps) == 1 and steps != {1}:
+        return f"{frames[0]}-{frames[-1]} every {steps.pop()}"
+    return ranges(frames)
+
+
+def crossing_frames(table: pd.DataFrame) -> list[int]:
+    """The frames after frame 0 whose state crosses itself or an obstacle."""
+    bad = (table["self_pairs"] > 0) | (table["obstacle_pairs"] > 0) | (table["nodes_inside"] > 0)
+    return [int(f) for f in table.loc[bad & (table["frame"] > 0), "frame"]]
+
+
+def summarize(table: pd.DataFrame, run_dir: Path) -> dict:
+    crossing = crossing_frames(table)
+    start = table[table["frame"] == 0]
+    clearance = table["clearance_m"].dropna()
+    return {
+        "run_dir": str(run_dir),
+        "states_checked": len(table),
+        "frames": frame_list(table["frame"]),
+        "frames_crossing": frame_list(crossing),
+        "clean": not crossing,
+        "start_state": None if start.empty else {k: int(start.iloc[0][k]) for k in
+                                                 ("self_pairs", "obstacle_pairs", "nodes_inside")},
+        "max_self_pairs": int(table["self_pairs"].max()),
+        "max_obstacle_pairs": int(table["obstacle_pairs"].max()),
+        "max_nodes_inside": int(table["nodes_inside"].max()),
+        "min_clearance_m": float(clearance.min()) if len(clearance) else None,
+    }
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m experiments.check_crossings",
+                                     description=__doc__.split("\n")[0])
+    parser.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="a run folder of python -m experiments.run")
+    parser.add_argument("--out", type=Path, default=None, help=f"output folder (default RUN_DIR/{DEFAULT_OUT})")
+    parser.add_argument("--frames", default=None, help="frames a:b (inclusive; a:, :b, k)")
+    args = parser.parse_args(argv)
+    try:
+        table = check_run(args.run_dir, args.frames)
+    except CheckError as exc:
+        print(f"check_crossings error: {exc}", file=sys.stderr)
+        return 2
+    out = args.out if args.out is not None else args.run_dir / DEFAULT_OUT
+    summary = summarize(table, args.run_dir)
+    write_text_atomic(out / "crossings.csv", table.to_csv(index=False))
+    write_json_atomic(out / "summary.json", summary)
+    print(f"{summary['states_checked']} states checked (frames {summary['frames']})")
+    if summary["start_state"] and any(summary["start_state"].values()):
+        s = summary["start_state"]
+        print(f"frame 0 (before the start state's untangling): {s['self_pairs']} self pairs, "
+              f"{s['obstacle_pairs']} obstacle pairs, {s['nodes_inside']} nodes inside")
+    if summary["clean"]:
+        print("no state after frame 0 has cloth crossing itself or an obstacle")
+    else:
+        bad = table[table["frame"].isin(crossing_frames(table))]
+        with pd.option_context("display.float_format", "{:.4g}".format, "display.width", 160):
+            print(bad.to_string(index=False, max_rows=20, na_rep=""))
+        print(f"crossing in frames {summary['frames_crossing']}")
+    if summary["min_clearance_m"] is not None:
+        print(f"nearest node to an obstacle: {summary['min_clearance_m']:.4g} m")
+    print(f"written: {out / 'crossings.csv'}, {out / 'summary.json'}")
+    return 0 if summary["clean"] else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
