@@ -8,7 +8,7 @@ DESIGN.md section 1, one named stage per line::
     remesh            mode=adaptive | viewdep    sizing field, remesh, pop filter
     untangle          self_collision or mesh obstacles: in the first frame (the initial or restarted
                       state may cross), after a remesh that changed the mesh, and after a frame
-                      that left crossings or whose collision passes left collisions
+                      whose untangling left crossings
     buckling          mode's buckling (needs a camera): compression factors of eq 11
     steps              the scene's steps_per_frame (fewer for a character wholly out of view,
                        mode=viewdep; more when scene.obstacle_step asks it of a fast obstacle)
@@ -21,6 +21,7 @@ DESIGN.md section 1, one named stage per line::
         obstacle_contact   'obstacles': projection out of the obstacles (end of the step)
         collisions         self_collision and/or obstacle_ccd (triangle-mesh obstacles, with a
                            thickness), one pass: proximity, CCD, impact zones
+        untangle           when that pass gave up (left collisions): before the next step
     per-frame record
 
 The three modes share all of this; only the remesh stage (its sizing field) differs.
@@ -351,10 +352,12 @@ class Simulation:
         stats["steps"] = n_steps
         for _ in range(n_steps):
             self.step(timings, stats)
-        if stats["self_collisions_left"] > 0 or stats["obstacle_collisions_left"] > 0:
-            # a collision pass gave up: the cloth may now cross itself or a body (a fixed dress
-            # kept 12 such crossings for 165 frames); the next frame looks for them first
-            self.untangle_due = True
+            if stages.untangle and self._step_gave_up:
+                # a collision pass gave up: the cloth may now cross itself or a body. Untangled
+                # before the next step, whose collision pass needs a clean start (a fixed dress
+                # kept 12 such crossings for 165 frames; untangled only at the next frame's
+                # start, frames 335-337 of its dance still ended crossing)
+                self._timed(timings, "collisions", self.untangle, stats)
         self.frame += 1
         record = self.state_record()
         record.update(stats)
@@ -384,6 +387,7 @@ class Simulation:
         for handle in self.scene.handles:  # take hold, pin, let a spring fade, let go (Handle.update)
             handle.update(mesh.node_x, mesh.node_pinned, self.time)
         collide = stages.self_collision or stages.obstacle_ccd
+        self._step_gave_up = False  # set by resolve_collisions when its pass leaves collisions
         x_start = mesh.node_x.copy() if collide else None
         y_start = self._mesh_obstacle_positions() if stages.obstacle_ccd else None
         contacts = self._timed(timings, "collisions", self._contact_constraints) if stages.obstacle_contact else None
@@ -530,6 +534,7 @@ class Simulation:
             stats[key] = max(stats[key], s[key])
         # what the frame's worst step left (a later step may clear it; the record keeps the worst)
         stats["self_collisions_left"] = max(stats["self_collisions_left"], s["self_collisions_left"])
+        self._step_gave_up = s["self_collisions_left"] > 0 or s.get("obstacle_collisions_left", 0) > 0
 
     def _mesh_obstacle_triangles(self) -> list:
         """(positions, faces) of the triangle-mesh obstacles now, [] if none."""
@@ -544,7 +549,11 @@ class Simulation:
         mesh = self.scene.mesh
         s = untangle(mesh.face_nodes, mesh.node_x, mesh.node_m, mesh.node_pinned, self.scene.thickness,
                      UNTANGLE_ITERATIONS, obstacles=self._mesh_obstacle_triangles())
+        if stats["untangles"]:  # another this frame: the most found, every iteration, the last one's rest
+            s["intersections_found"] = max(s["intersections_found"], stats["intersections_found"])
+            s["untangle_iterations"] += stats["untangle_iterations"]
         stats.update(s)
+        stats["untangles"] += 1
         self.intersections_pending = int(s["intersections_left"])
         self.untangle_due = False
 

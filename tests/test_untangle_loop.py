@@ -106,24 +106,27 @@ def test_a_fixed_mesh_run_untangles_a_start_state_that_crosses_a_mesh_obstacle(m
     assert calls == [0]  # the start state only: nothing was left for later frames
 
 
-def test_a_frame_whose_collision_pass_gave_up_is_followed_by_an_untangling(monkeypatch):
+def test_a_step_whose_collision_pass_gave_up_is_followed_by_an_untangling(monkeypatch):
     """A fixed mesh untangles only its start state, unless a step's collision response leaves
-    collisions: then the next frame looks for crossings first."""
+    collisions: then the cloth is untangled before the frame's next step, so that the frame does
+    not end crossing, and the frame's record counts it."""
     calls = []
     original = simulation.Simulation.untangle
     monkeypatch.setattr(simulation.Simulation, "untangle",
-                        lambda self, stats: (calls.append(self.frame), original(self, stats)))
+                        lambda self, stats: (calls.append((self.frame, self._substep)), original(self, stats)))
     real = simulation.resolve_self_collisions
-    give_up = {"frame": 1}
+    give_up = [(1, 1), (1, 2)]  # the first two steps of the second frame (frame index, steps taken in it)
 
     def response(*a, **k):
         s = real(*a, **k)
-        if sim.frame == give_up["frame"]:
+        if (sim.frame, sim._substep) in give_up:
             s["self_collisions_left"] = 1  # as when the impact-zone rounds run out
         return s
 
     monkeypatch.setattr(simulation, "resolve_self_collisions", response)
     sim = build_sim(*LAYERED, "mode=nonadaptive")
-    for _ in range(4):
-        sim.advance_frame()
-    assert calls == [0, 2]  # the start state, and the frame after the one that gave up
+    assert sim.scene.steps_per_frame > 2  # each untangling comes before a later step of the frame
+    records = [sim.advance_frame() for _ in range(4)]
+    assert calls == [(0, 0), *give_up]  # the start state, and right after each step that gave up
+    assert [r["untangles"] for r in records] == [1, 2, 0, 0]
+    assert records[1]["self_collisions_left"] == 1 and records[2]["self_collisions_left"] == 0

@@ -44,5 +44,9 @@ UNTANGLE_RECORD = {"intersections_found": 0, "untangle_iterations": 0, "intersec
 # strain_limits, dimensionless). Zero in scenes without the effect.
 STRAIN_LIMIT_RECORD = {"strain_limit_iterations": 0, "strain_violation_max": 0.0}
 
-# The frame's collision columns: zero in scenes without the effects.
-COLLISION_RECORD = {"self_velocity_clamped": 0, **SELF_COLLISION_RECORD, **OBSTACLE_RECORD, **UNTANGLE_RECORD}
+# The frame's collision columns: zero in scenes without the effects. untangles: the untanglings
+# the frame ran (of the start state, after a remesh, after a step whose collision pass gave up);
+# the UNTANGLE_RECORD columns then give the most crossings found, the iterations of all of them,
+# and what the last one left.
+COLLISION_RECORD = {"self_velocity_clamped": 0, "untangles": 0, **SELF_COLLISION_RECORD, **OBSTACLE_RECORD,
+                    **UNTANGLE_RECORD}
