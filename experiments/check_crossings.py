@@ -20,14 +20,21 @@ RUN_DIR is a run folder of ``python -m experiments.run`` with per-frame states
   exact point-to-triangle distance to mesh obstacles, the distance to the capsules' surfaces);
   blank for a scene without obstacles.
 
+**The records** (frames.parquet, or a killed run's frames.jsonl) say more of the frames without
+a state: a frame whose untangling left crossings (``intersections_left`` > 0: the steps after it
+cannot remove them, so the frame ends crossing) counts against the verdict like a crossing
+state; the frames with a step whose collision pass gave up (``self_collisions_left`` or
+``obstacle_collisions_left`` > 0, untangled before the next step) are listed.
+
 **Frame 0** is the state before the first step, and so before the start state's untangling (a
 scene's start mesh may cross its obstacles; the first frame removes that): it is listed, and the
 verdict covers the frames after it.
 
 **Writes** into ``--out`` (default RUN_DIR/check_crossings): ``crossings.csv`` and
 ``summary.json`` (states checked, frames with crossings as ranges, largest counts, smallest
-clearance), and prints the frames that cross, or that none does. Exit code 0 when no state after
-frame 0 crosses, 1 when one does, 2 for a bad input (a folder without states, an unreadable state
+clearance, the records' frames), and prints the frames that cross, or that none does. Exit code 0
+when no state after frame 0 crosses and no record says crossings were left, 1 otherwise, 2 for a
+bad input (a folder without states, an unreadable state
 file, ``--frames`` selecting none), named before any work.
 """
 
@@ -47,7 +54,7 @@ from cloth.collision.untangle import find_intersections
 from cloth.io.manifest import write_json_atomic, write_text_atomic
 from cloth.io.states import StateError, load_state
 from experiments.accuracy import state_files
-from experiments.compare_arcsim import CompareError, parse_frames, ranges
+from experiments.compare_arcsim import CompareError, parse_frames, ranges, run_records
 
 DEFAULT_OUT = "check_crossings"
 COLUMNS = ("frame", "time_s", "faces", "self_pairs", "self_length_m", "obstacle_pairs", "obstacle_length_m",
@@ -136,7 +143,26 @@ def crossing_frames(table: pd.DataFrame) -> list[int]:
     return [int(f) for f in table.loc[bad & (table["frame"] > 0), "frame"]]
 
 
-def summarize(table: pd.DataFrame, run_dir: Path) -> dict:
+def record_frames(run_dir: Path, frames: str | None = None) -> dict:
+    """From the run's records within `frames`: 'left' (frames whose untangling left crossings)
+    and 'gave_up' (frames with a step whose collision pass left collisions); {} without records."""
+    try:
+        records = run_records(run_dir)
+    except CompareError as exc:
+        raise CheckError(str(exc)) from None
+    first, last = parse_frames(frames)
+    records = records[(records["frame"] >= first) & (records["frame"] <= last)]
+    if records.empty:
+        return {}
+    column = lambda name: records[name] if name in records else pd.Series(0, index=records.index)  # noqa: E731
+    gave_up = (column("self_collisions_left") > 0) | (column("obstacle_collisions_left") > 0)
+    return {"records": len(records),
+            "left": [int(f) for f in records.loc[column("intersections_left") > 0, "frame"]],
+            "gave_up": [int(f) for f in records.loc[gave_up, "frame"]]}
+
+
+def summarize(table: pd.DataFrame, run_dir: Path, records: dict | None = None) -> dict:
+    records = records or {}
     crossing = crossing_frames(table)
     start = table[table["frame"] == 0]
     clearance = table["clearance_m"].dropna()
@@ -145,7 +171,10 @@ def summarize(table: pd.DataFrame, run_dir: Path) -> dict:
         "states_checked": len(table),
         "frames": frame_list(table["frame"]),
         "frames_crossing": frame_list(crossing),
-        "clean": not crossing,
+        "clean": not crossing and not records.get("left"),
+        "records": records.get("records", 0),
+        "records_left_crossings": frame_list(records.get("left", [])),
+        "records_collisions_gave_up": frame_list(records.get("gave_up", [])),
         "start_state": None if start.empty else {k: int(start.iloc[0][k]) for k in
                                                  ("self_pairs", "obstacle_pairs", "nodes_inside")},
         "max_self_pairs": int(table["self_pairs"].max()),
@@ -164,11 +193,12 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         table = check_run(args.run_dir, args.frames)
+        records = record_frames(args.run_dir, args.frames)
     except CheckError as exc:
         print(f"check_crossings error: {exc}", file=sys.stderr)
         return 2
     out = args.out if args.out is not None else args.run_dir / DEFAULT_OUT
-    summary = summarize(table, args.run_dir)
+    summary = summarize(table, args.run_dir, records)
     write_text_atomic(out / "crossings.csv", table.to_csv(index=False))
     write_json_atomic(out / "summary.json", summary)
     print(f"{summary['states_checked']} states checked (frames {summary['frames']})")
@@ -176,13 +206,17 @@ def main(argv=None) -> int:
         s = summary["start_state"]
         print(f"frame 0 (before the start state's untangling): {s['self_pairs']} self pairs, "
               f"{s['obstacle_pairs']} obstacle pairs, {s['nodes_inside']} nodes inside")
-    if summary["clean"]:
-        print("no state after frame 0 has cloth crossing itself or an obstacle")
-    else:
+    if summary["frames_crossing"]:
         bad = table[table["frame"].isin(crossing_frames(table))]
         with pd.option_context("display.float_format", "{:.4g}".format, "display.width", 160):
             print(bad.to_string(index=False, max_rows=20, na_rep=""))
         print(f"crossing in frames {summary['frames_crossing']}")
+    else:
+        print("no state after frame 0 has cloth crossing itself or an obstacle")
+    if summary["records"]:
+        print(f"records of {summary['records']} frames: "
+              f"untangling left crossings in frames {summary['records_left_crossings'] or 'none'}; "
+              f"a collision pass gave up in frames {summary['records_collisions_gave_up'] or 'none'}")
     if summary["min_clearance_m"] is not None:
         print(f"nearest node to an obstacle: {summary['min_clearance_m']:.4g} m")
     print(f"written: {out / 'crossings.csv'}, {out / 'summary.json'}")

@@ -107,6 +107,26 @@ def test_frame_0_is_listed_but_the_verdict_is_on_the_frames_after_it(tmp_path, c
     assert [int(f) for f in check_run(tmp_path, "5:10")["frame"]] == [5, 10]
 
 
+def test_records_of_frames_without_a_state_count(tmp_path, capsys):
+    """A frame whose record says its untangling left crossings ends crossing (no later step
+    removes them): it fails the verdict even when no saved state shows it."""
+    for frame in (0, 5):
+        save(tmp_path, frame, cloth(CLOTH + [0.0, 0.0, 0.6], [[0, 1, 2]]), [triangles(THROUGH)])
+    records = [{"frame": k, "intersections_left": 0, "self_collisions_left": 0, "obstacle_collisions_left": 0}
+               for k in range(1, 6)]
+    records[1]["obstacle_collisions_left"] = 2  # frame 2: a step gave up, its untangling cleared it
+    records[2].update(obstacle_collisions_left=1, intersections_left=6)  # frame 3: it did not
+    records[3]["intersections_left"] = 6  # frame 4: still there at the next frame's untangling
+    (tmp_path / "frames.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    assert main([str(tmp_path)]) == 1
+    printed = capsys.readouterr().out
+    assert "no state after frame 0 has cloth crossing" in printed
+    assert "untangling left crossings in frames 3-4; a collision pass gave up in frames 2-3" in printed
+    summary = json.loads((tmp_path / "check_crossings" / "summary.json").read_text())
+    assert not summary["clean"] and summary["records"] == 5
+    assert main([str(tmp_path), "--frames", "5:", "--out", str(tmp_path / "late")]) == 0
+
+
 def test_a_crowd_sums_its_characters(tmp_path):
     save(tmp_path / "dancer_0", 1, cloth(CLOTH, [[0, 1, 2]]), [triangles(THROUGH)])
     save(tmp_path / "dancer_1", 1, cloth(CLOTH, [[0, 1, 2]]), [triangles(THROUGH), sphere()])
