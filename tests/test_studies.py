@@ -72,6 +72,21 @@ def test_accuracy_study_has_a_reference_ensemble_and_the_anticipation_sweep():
 
 
 @pytest.mark.parametrize("experiment", EXPERIMENTS)
+def test_a_preset_that_measures_accuracy_against_a_reference_saves_states(experiment):
+    """The study callback measures every run against the sweep's reference from the runs' states
+    (experiments.accuracy): a preset with a reference point and the callback's accuracy on must
+    save them, or the callback fails at the end of the study (the dancer's buckling ablation did,
+    in the main job)."""
+    preset = yaml.safe_load((ROOT / "conf" / "experiment" / f"{experiment}.yaml").read_text())
+    accuracy = preset["hydra"]["callbacks"]["study"].get("accuracy", True)
+    has_reference = any("reference" in values for values in _sweep(experiment).values())
+    if experiment == "table1":  # its points come from the accuracy study's baseline, no reference
+        assert not any("reference" in p for p in preset["points"].split(","))
+    if accuracy and has_reference:  # every run: the reference and each run measured against it
+        assert all(compose_config(*run).output.states_every >= 1 for run in _runs(experiment))
+
+
+@pytest.mark.parametrize("experiment", EXPERIMENTS)
 def test_repeats_sweep_the_seeds_one_run_at_a_time(experiment):
     """`repeats=N` makes the sweeper run every point with seeds 0 .. N-1 (3 for Table 1, 1 for
     the others by default), and the local launcher runs one run at a time."""
