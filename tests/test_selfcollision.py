@@ -36,7 +36,7 @@ def ccd_hits(mesh, x0, x1, thickness=THICKNESS):
     hits = np.empty((len(vf) + len(ee), 4), dtype=np.int64)
     inv_m = np.ones(mesh.n_nodes)
     return ccd_pass(vf, ee, mesh.face_nodes, mesh.edge_nodes, x0, x1.copy(), inv_m, eta, 0.0, False, hits,
-                    np.zeros(x0.shape[0] + 1, dtype=bool))
+                    np.zeros(x0.shape[0] + 1, dtype=bool), np.zeros((0, 7)))
 
 
 # ------------------------------------------------------------------------------------------

@@ -4,18 +4,25 @@ Provot 1997, Bridson, Fedkiw and Anderson 2002).
 The nodes of the pairs still colliding are merged into zones, together with the zones already
 found (a union-find forest, `merge_zones`), and each zone moves rigidly over the step with its
 linear and angular momentum (`rigid_motion`); a zone holding pinned nodes (infinite mass) takes
-the rigid motion that best fits their displacement instead (`pinned_fit`, Kabsch).
+the rigid motion that best fits their displacement instead (`pinned_fit`, Kabsch). A zone
+holding the nodes of an obstacle, which may deform within the step, is separated by inelastic
+projection instead (`inelastic_projection`; cloth.collision.selfcollision decides which).
 """
 
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 # A zone's pinned nodes give it their rigid motion only when they span a plane: when the second
 # singular value of their centred start positions is below this fraction of the first they are
 # (nearly) collinear, the rotation about their line is undetermined, and the zone takes their
 # mean displacement (a translation).
 COLLINEAR_FRACTION = 1e-6
+# Inelastic projection of a zone that holds obstacle nodes (`inelastic_projection`): sweeps over
+# its impacts at most, and the largest violation (a fraction of the separation) it may leave.
+PROJECTION_SWEEPS = 200
+PROJECTION_TOLERANCE = 1e-3
 
 
 def _find(parent, i):
@@ -93,3 +100,44 @@ def rigid_motion(x0, x1, m, pinned, nodes):
     else:
         R = np.eye(3)
     x1[nodes] = c0 + dc + r @ R.T
+
+
+@njit(cache=True)
+def inelastic_projection(x1, inv_m, hits, impacts, chosen, sep, max_sweeps, tolerance):
+    """Move the free nodes of x1 (in place) the least, in the mass-weighted norm, so that each
+    chosen impact k ends at least `sep` on its starting side: n_k . sum_j w_kj x1[hits[k, j]] >= sep
+    (Harmon, Vouga, Tamstorf and Grinspun 2008, as ARCSim's impact zones; the weights and normal
+    of `impacts` as cloth.collision.response.ccd_pass writes them). Pinned nodes (inv_m = 0) do
+    not move. Hildreth's dual coordinate ascent: each impact's multiplier in turn, kept >= 0,
+    until no constraint is violated by more than tolerance x sep or max_sweeps. Returns the
+    largest violation left (m; <= 0 when every impact is separated)."""
+    lam = np.zeros(chosen.shape[0])
+    worst = 0.0
+    for _ in range(max_sweeps):
+        worst = -np.inf
+        for jj in range(chosen.shape[0]):
+            k = chosen[jj]
+            n0, n1, n2 = impacts[k, 4], impacts[k, 5], impacts[k, 6]
+            if n0 == 0.0 and n1 == 0.0 and n2 == 0.0:
+                continue  # a degenerate touch: no direction to separate along
+            gap, denom = -sep, 0.0
+            for j in range(4):
+                v, w = hits[k, j], impacts[k, j]
+                gap += w * (n0 * x1[v, 0] + n1 * x1[v, 1] + n2 * x1[v, 2])
+                denom += w * w * inv_m[v]
+            worst = max(worst, -gap)
+            if denom == 0.0:
+                continue
+            step = max(-gap / denom, -lam[jj])
+            if step == 0.0:
+                continue
+            lam[jj] += step
+            for j in range(4):
+                v = hits[k, j]
+                s = step * impacts[k, j] * inv_m[v]
+                x1[v, 0] += s * n0
+                x1[v, 1] += s * n1
+                x1[v, 2] += s * n2
+        if worst <= tolerance * sep:
+            break
+    return worst

@@ -265,13 +265,26 @@ def proximity_repulsion(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, h_obstacl
 
 
 @njit(cache=True)
-def ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, respond, hits, moved):
+def _record(impacts, k, w, n):
+    """Row k of `impacts` (when it has rows): the hit's weights and normal."""
+    if impacts.shape[0] == 0:
+        return
+    for j in range(4):
+        impacts[k, j] = w[j]
+    for j in range(3):
+        impacts[k, 4 + j] = n[j]
+
+
+@njit(cache=True)
+def ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, respond, hits, moved, impacts):
     """One Gauss-Seidel pass of CCD over the candidate pairs. Each hit (re-tested against the
     current x1, so pairs an earlier correction fixed are skipped) is written to `hits` as four
     node indices; with `respond` it is also corrected. `moved` (N + 1,) bool: on entry, when its
     last entry is set, pairs none of whose nodes is flagged are skipped (their motion is
     unchanged since the previous pass found them free); on return it flags the nodes this
-    pass corrected (last entry cleared). Returns the number of hits."""
+    pass corrected (last entry cleared). `impacts`: (len(hits), 7) to also write each hit's
+    four weights w and unit normal n at the touch (n . sum_k w_k x_k > 0 on the starting side;
+    n = 0 for a degenerate touch), or (0, 7) not to. Returns the number of hits."""
     idx = np.empty(4, dtype=np.int64)
     nh = 0
     only_moved = moved[moved.shape[0] - 1]
@@ -292,7 +305,7 @@ def ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, respond, h
         idx[0], idx[1], idx[2], idx[3] = i, a, b, c
         hits[nh] = idx
         nh += 1
-        if not respond:
+        if not respond and impacts.shape[0] == 0:
             continue
         xi, xa, xb, xc = _lerp(x0, x1, i, t), _lerp(x0, x1, a, t), _lerp(x0, x1, b, t), _lerp(x0, x1, c, t)
         dist, w0, w1, w2 = point_triangle_closest(xi, xa, xb, xc)
@@ -300,10 +313,14 @@ def ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, respond, h
         if _normalise(n) == 0.0:  # degenerate face at the touch: use the direction at x0
             n = x0[i] - (w0 * x0[a] + w1 * x0[b] + w2 * x0[c])
             if _normalise(n) == 0.0:
+                _record(impacts, nh - 1, np.array([1.0, -w0, -w1, -w2]), n)
                 continue
         w = np.array([1.0, -w0, -w1, -w2])
         if _dot_w(x0, idx, w, n) < 0.0:  # keep the node on the side of the face it started on
             n = -n
+        _record(impacts, nh - 1, w, n)
+        if not respond:
+            continue
         if _apply(x1, inv_m, idx, w, n, sep) > 0.0:
             moved[i] = moved[a] = moved[b] = moved[c] = True
     for k in range(ee.shape[0]):
@@ -321,7 +338,7 @@ def ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, respond, h
         idx[0], idx[1], idx[2], idx[3] = p, q, P, Q
         hits[nh] = idx
         nh += 1
-        if not respond:
+        if not respond and impacts.shape[0] == 0:
             continue
         xp, xq, xP, xQ = _lerp(x0, x1, p, t), _lerp(x0, x1, q, t), _lerp(x0, x1, P, t), _lerp(x0, x1, Q, t)
         dist, s, u = segment_segment_closest(xp, xq, xP, xQ)
@@ -332,9 +349,13 @@ def ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, respond, h
             for kk in range(4):
                 n += w[kk] * x0[idx[kk]]
             if _normalise(n) == 0.0:
+                _record(impacts, nh - 1, w, n)
                 continue
         if _dot_w(x0, idx, w, n) < 0.0:
             n = -n
+        _record(impacts, nh - 1, w, n)
+        if not respond:
+            continue
         if _apply(x1, inv_m, idx, w, n, sep) > 0.0:
             moved[p] = moved[q] = moved[P] = moved[Q] = True
     return nh

@@ -17,8 +17,9 @@ positions x1 the integrator proposes at its end, `resolve_self_collisions` chang
    into zones (with the zones already found) and each zone moves rigidly with its own linear
    and angular momentum over the step. A rigid motion of a collision-free configuration has no
    internal collisions, and zones only grow, so this terminates: at worst with one zone that
-   holds every colliding node. A zone with pinned nodes (infinite mass) takes the rigid motion
-   that best fits their displacement (`pinned_fit`). What is left after `max_zone_passes` is
+   holds every colliding node. A zone with pinned cloth nodes (infinite mass) takes the rigid
+   motion that best fits their displacement (`pinned_fit`); a zone with obstacle nodes is
+   separated by inelastic projection instead (below). What is left after `max_zone_passes` is
    counted in the record (never aborts).
 
 The caller turns the change of x1 into a change of velocity (dv = dx1 / h). Pairs that share
@@ -30,12 +31,14 @@ and triangle-mesh obstacles (cloth.collision.meshobstacle) moving linearly over 
 start to their end positions: the obstacles' triangles are appended to the cloth's as fixed
 faces whose nodes are pinned (infinite mass, inv_m = 0), so every correction moves only the
 cloth, and face pairs are taken between the cloth and the obstacles (and within the cloth when
-asked), never between two obstacle faces. A rigid impact zone holding pinned nodes moves with
-the rigid motion that best fits their displacement (least squares, Kabsch): exact for a zone
-touching one rigidly moving part (a translating sphere, one skinned capsule), so such a zone
-has no collision left inside it and the zone argument above still terminates. A zone touching
-parts that move differently (two capsules at a bending joint) is fitted only approximately;
-what it leaves after the rounds is counted (`obstacle_collisions_left`).
+asked), never between two obstacle faces. An impact zone holding obstacle nodes is not moved
+rigidly: the best rigid fit of a body that deforms within the step (fingers bending against a
+hand) leaves collisions round after round (the dress on ARCSim's dancing body gave up after 48
+rounds). Its free nodes go back to where the zones started and are moved the least, in the
+mass-weighted norm, that separates every impact the zone has gathered (inelastic projection,
+Harmon, Vouga, Tamstorf and Grinspun 2008, as ARCSim's zones: each impact's weights and normal
+at its touch, `cloth.collision.impactzones.inelastic_projection`). What is left after the rounds
+is counted (`obstacle_collisions_left`).
 
 This module holds the parameters and the two drivers; the stages are in their own modules:
 
@@ -45,7 +48,8 @@ This module holds the parameters and the two drivers; the stages are in their ow
 * cloth.collision.response, stages 1 and 2: a slab test along the face normal or the edges'
   cross product rejects most pairs before the exact distance or the CCD cubic
   (cloth.collision.ccd.vf_separated, ee_separated);
-* cloth.collision.impactzones, stage 3: the zones (union-find), their rigid motion, `pinned_fit`.
+* cloth.collision.impactzones, stage 3: the zones (union-find), their rigid motion, `pinned_fit`,
+  and the inelastic projection of zones with obstacle nodes.
 """
 
 from __future__ import annotations
@@ -55,7 +59,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from cloth.collision.candidates import overlapping_face_pairs, owner_faces, primitive_pairs, swept_boxes
-from cloth.collision.impactzones import merge_zones, rigid_motion
+from cloth.collision.impactzones import (
+    PROJECTION_SWEEPS,
+    PROJECTION_TOLERANCE,
+    inelastic_projection,
+    merge_zones,
+    rigid_motion,
+)
 from cloth.collision.response import ccd_pass, proximity_repulsion
 from cloth.core.records import OBSTACLE_RECORD, SELF_COLLISION_RECORD
 
@@ -67,6 +77,9 @@ CCD_ETA_FRACTION = 1e-3
 # correction does not start new collisions (the proximity stage of the next step restores the
 # full thickness).
 CCD_SEPARATION_FRACTION = 0.1
+
+
+NO_IMPACTS = np.zeros((0, 7))  # ccd_pass without the hits' weights and normals
 
 
 @dataclass(frozen=True)
@@ -161,7 +174,7 @@ def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, 
     hits = np.empty((vf.shape[0] + ee.shape[0], 4), dtype=np.int64)
     moved = np.zeros(N + 1, dtype=bool)  # first pass: every pair
     for p in range(int(params.ccd_passes)):
-        n = ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, True, hits, moved)
+        n = ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, True, hits, moved, NO_IMPACTS)
         moved[-1] = True  # later passes: only pairs with a node this pass moved
         if p == 0:
             count("self_ccd_hits", "obstacle_ccd_hits", hits, n)
@@ -170,12 +183,15 @@ def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, 
         stats["self_ccd_passes"] = p + 1
         vf, ee = pairs(x0, x1, eta)
         hits = np.empty((vf.shape[0] + ee.shape[0], 4), dtype=np.int64)
-    # 3. rigid impact zones
+    # 3. impact zones: rigid, or projected where they hold obstacle nodes
     parent = np.arange(N)
     in_zone = np.zeros(N, dtype=bool)
+    x_zone = x1.copy()  # where the zones' projections start from: the positions before any zone
+    zone_hits, zone_impacts = np.zeros((0, 4), dtype=np.int64), np.zeros((0, 7))
     for r in range(int(params.max_zone_passes) + 1):
+        impacts = np.zeros((hits.shape[0], 7)) if n_fixed_faces else NO_IMPACTS
         n = ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, False, hits,
-                     np.zeros(N + 1, dtype=bool))  # every pair: zones moved rigidly
+                     np.zeros(N + 1, dtype=bool), impacts)  # every pair: zones moved rigidly
         if n == 0:
             break
         if r == int(params.max_zone_passes):
@@ -184,8 +200,21 @@ def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, 
         stats["impact_zone_rounds"] = r + 1
         zones = merge_zones(parent, in_zone, hits[:n])
         stats["impact_zones"] = len(zones)
+        if n_fixed_faces:
+            zone_hits = np.vstack([zone_hits, hits[:n]])
+            zone_impacts = np.vstack([zone_impacts, impacts[:n]])
         for zone in zones:
-            rigid_motion(x0, x1, node_m, pinned, zone)
+            if n_fixed_faces and zone[-1] >= first_fixed:  # (zones are sorted) an obstacle node in it
+                # the best rigid fit of a deforming body's nodes (fingers bending) leaves
+                # collisions round after round: separate every impact of the zone so far, from
+                # the zone's positions before any zone moved it
+                x1[zone] = x_zone[zone]
+                mine = np.zeros(N, dtype=bool)
+                mine[zone] = True
+                inelastic_projection(x1, inv_m, zone_hits, zone_impacts, np.flatnonzero(mine[zone_hits[:, 0]]), sep,
+                                     PROJECTION_SWEEPS, PROJECTION_TOLERANCE)
+            else:
+                rigid_motion(x0, x1, node_m, pinned, zone)
         vf, ee = pairs(x0, x1, eta)
         hits = np.empty((vf.shape[0] + ee.shape[0], 4), dtype=np.int64)
     return stats
