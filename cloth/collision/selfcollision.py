@@ -191,7 +191,7 @@ def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, 
     for r in range(int(params.max_zone_passes) + 1):
         impacts = np.zeros((hits.shape[0], 7)) if n_fixed_faces else NO_IMPACTS
         n = ccd_pass(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, eta, sep, False, hits,
-                     np.zeros(N + 1, dtype=bool), impacts)  # every pair: zones moved rigidly
+                     np.zeros(N + 1, dtype=bool), impacts)  # every pair: the zones moved them
         if n == 0:
             break
         if r == int(params.max_zone_passes):
@@ -203,15 +203,17 @@ def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, 
         if n_fixed_faces:
             zone_hits = np.vstack([zone_hits, hits[:n]])
             zone_impacts = np.vstack([zone_impacts, impacts[:n]])
-        for zone in zones:
+            zone_of = np.full(N, -1)  # each node's zone this round: which impacts are whose
+            for k, zone in enumerate(zones):
+                zone_of[zone] = k
+            hit_zone = zone_of[zone_hits[:, 0]]  # (an impact's four nodes share one zone)
+        for k, zone in enumerate(zones):
             if n_fixed_faces and zone[-1] >= first_fixed:  # (zones are sorted) an obstacle node in it
                 # the best rigid fit of a deforming body's nodes (fingers bending) leaves
                 # collisions round after round: separate every impact of the zone so far, from
                 # the zone's positions before any zone moved it
                 x1[zone] = x_zone[zone]
-                mine = np.zeros(N, dtype=bool)
-                mine[zone] = True
-                inelastic_projection(x1, inv_m, zone_hits, zone_impacts, np.flatnonzero(mine[zone_hits[:, 0]]), sep,
+                inelastic_projection(x1, inv_m, zone_hits, zone_impacts, np.flatnonzero(hit_zone == k), sep,
                                      PROJECTION_SWEEPS, PROJECTION_TOLERANCE)
             else:
                 rigid_motion(x0, x1, node_m, pinned, zone)
