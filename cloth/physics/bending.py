@@ -22,6 +22,26 @@ projected to positive semi-definite in the (a, b, c) coordinates, whose map to p
 fixed congruence, so the projected 12x12 matrix is PSD and equals the exact one wherever that
 is PSD already. (Every bent hinge of a dancing skirt is indefinite, so the 9x9 eigen-decomposition,
 cloth.physics.eigen, runs for each hinge in every step.)
+
+**Collapsing faces.** d theta / d x2 has length 1 / h_A, h_A = |n_A| / |e| the height of face A
+over the hinge edge, so the force of a hinge grows without bound as a face collapses, and theta
+jumps by pi when a face passes through its edge. Near collapse the hinge's weight fades:
+
+    W = 1/2 w S (theta - theta_rest)^2,   S = s(r_A) s(r_B),   r_F = (h_F / (q0 |e|))^2,
+    s(r) = r (2 - r) for r < 1, 1 beyond (C1 at r = 1),
+
+q0 = HINGE_FADE_HEIGHT. S is 1 for every face higher than q0 |e| (the energy is unchanged there)
+and goes as h^2 at a collapse, so the force w S d dtheta + w d^2 dS / 2 goes to 0 with h, the
+energy is continuous through the flip (0 on both sides), and the largest force of a hinge is about
+w |d| / (q0 |e|). r_F is a polynomial in the positions over |e|^4, so S is differentiated exactly;
+in the fade (S < 1) the Hessian is the Gauss-Newton w S dtheta dtheta^T for every `project`:
+positive semi-definite and bounded (the exact one has terms in 1 / h).
+
+**The fold at +-pi.** atan2 wraps where the two faces fold flat onto each other. With a flat rest
+angle the energy is the same on both sides and only the force's sign turns (it opens the fold
+either way); with theta_rest != 0 the energy steps by 2 pi w theta_rest there. The force stays
+bounded (at most w (pi + |theta_rest|) |dtheta|) across it, which the tests check; cloth folded
+onto itself is held apart by the self-collision thickness.
 """
 
 from __future__ import annotations
@@ -34,6 +54,11 @@ from cloth.physics.membrane import GAUSS_NEWTON, project_psd
 # A hinge whose y^2 + z^2 = |n_A|^2 |n_B|^2 falls below this (m^8) has a collapsed face in world
 # space: its angle is undefined and it exerts no force.
 DEGENERATE_NORMAL2 = 1e-40
+# q0: a face whose height over the hinge edge is below q0 |e| has lost its shape, and the hinge's
+# weight fades with it (module docstring). ARCSim clamps the height in its bending force at 1e-3
+# |e|; a fade from 1e-2 bounds a hinge's force at about 100 times a healthy hinge's (whose faces
+# are about |e| / 2 high) and leaves every face of a remeshed mesh (aspect-limited) untouched.
+HINGE_FADE_HEIGHT = 1e-2
 
 
 def hinge_weight(rest_length, area_A, area_B, k_bend):
@@ -51,6 +76,54 @@ def dihedral_angle(x0, x1, x2, x3):
     y = -L * (a @ np.cross(b, c))
     z = (a @ c) * (a @ b) - (a @ a) * (b @ c)
     return np.arctan2(y, z)
+
+
+@njit(cache=True)
+def _fade(r):
+    """(s(r), s'(r)) with s(r) = r (2 - r) on [0, 1) and 1 beyond."""
+    if r >= 1.0:
+        return 1.0, 0.0
+    return r * (2.0 - r), 2.0 - 2.0 * r
+
+
+@njit(cache=True)
+def fade_ratios(a0, a1, a2, b0, b1, b2, c0, c1, c2):
+    """(r_A, r_B) = ((h_A / (q0 |e|))^2, (h_B / (q0 |e|))^2) of the hinge (a, b, c), in scalars."""
+    L2 = a0 * a0 + a1 * a1 + a2 * a2
+    nA0, nA1, nA2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    nB0, nB1, nB2 = c1 * a2 - c2 * a1, c2 * a0 - c0 * a2, c0 * a1 - c1 * a0
+    scale = 1.0 / (HINGE_FADE_HEIGHT * HINGE_FADE_HEIGHT * L2 * L2)
+    return (nA0 * nA0 + nA1 * nA1 + nA2 * nA2) * scale, (nB0 * nB0 + nB1 * nB1 + nB2 * nB2) * scale
+
+
+@njit(cache=True)
+def hinge_fade(a, b, c, grad):
+    """S = s(r_A) s(r_B), the hinge's weight factor near a collapsing face (module docstring);
+    writes dS / d(a, b, c) into grad (9,) (zeros where S = 1). With L2 = |a|^2, n_A = a x b,
+    n_B = c x a: d|n_A|^2 = 2 (b x n_A, n_A x a, 0), d|n_B|^2 = 2 (n_B x c, 0, a x n_B),
+    dr_F = d|n_F|^2 / (q0^2 L2^2) - 2 r_F dL2 / L2 with dL2 = (2 a, 0, 0)."""
+    for i in range(9):
+        grad[i] = 0.0
+    rA, rB = fade_ratios(a[0], a[1], a[2], b[0], b[1], b[2], c[0], c[1], c[2])
+    sA, dsA = _fade(rA)
+    sB, dsB = _fade(rB)
+    if sA == 1.0 and sB == 1.0:
+        return 1.0
+    L2 = a @ a
+    k = 1.0 / (HINGE_FADE_HEIGHT * HINGE_FADE_HEIGHT * L2 * L2)
+    nA = np.cross(a, b)
+    nB = np.cross(c, a)
+    gA = dsA * sB  # dS/dr_A
+    gB = sA * dsB  # dS/dr_B
+    bxn = np.cross(b, nA)
+    nxa = np.cross(nA, a)
+    nxc = np.cross(nB, c)
+    axn = np.cross(a, nB)
+    for i in range(3):
+        grad[i] = gA * (2.0 * k * bxn[i] - 4.0 * rA * a[i] / L2) + gB * (2.0 * k * nxc[i] - 4.0 * rB * a[i] / L2)
+        grad[3 + i] = gA * 2.0 * k * nxa[i]
+        grad[6 + i] = gB * 2.0 * k * axn[i]
+    return sA * sB
 
 
 @njit(cache=True)
@@ -208,14 +281,28 @@ def _gauss_newton_hinge_into(x0, x1, x2, x3, rest_theta, weight, grad, hess):
         gz = a[i] * ab - b[i] * L2
         grad[9 + i] = (z * gy - y * gz) * inv
         grad[i] = -(grad[3 + i] + grad[6 + i] + grad[9 + i])
+    S = 1.0
+    rA, rB = fade_ratios(a0, a1, a2, b0, b1, b2, c0, c1, c2)
+    fading = rA < 1.0 or rB < 1.0
+    if fading:  # a collapsing face (rare): the fade's gradient in 12 coordinates, as U's
+        g9 = np.empty(9)
+        S = hinge_fade(np.array((a0, a1, a2)), np.array((b0, b1, b2)), np.array((c0, c1, c2)), g9)
+    ws = weight * S
     for i in range(12):
-        wi = weight * grad[i]
+        wi = ws * grad[i]
         for j in range(12):
             hess[i, j] = wi * grad[j]
     d = np.arctan2(y, z) - rest_theta
     for i in range(12):
-        grad[i] *= weight * d
-    return 0.5 * weight * d * d
+        grad[i] *= ws * d
+    if fading:
+        h = 0.5 * weight * d * d
+        for i in range(3):
+            grad[3 + i] += h * g9[i]
+            grad[6 + i] += h * g9[3 + i]
+            grad[9 + i] += h * g9[6 + i]
+            grad[i] -= h * (g9[i] + g9[3 + i] + g9[6 + i])
+    return 0.5 * ws * d * d
 
 
 @njit(cache=True)
@@ -228,7 +315,8 @@ def bending_element_into(x0, x1, x2, x3, rest_theta, weight, project, grad, hess
     """
     if project == GAUSS_NEWTON:
         return _gauss_newton_hinge_into(x0, x1, x2, x3, rest_theta, weight, grad, hess)
-    theta, u, H, ok = angle_derivatives(x1 - x0, x2 - x0, x3 - x0)
+    a, b, c = x1 - x0, x2 - x0, x3 - x0
+    theta, u, H, ok = angle_derivatives(a, b, c)
     for i in range(12):
         grad[i] = 0.0
         for j in range(12):
@@ -236,10 +324,16 @@ def bending_element_into(x0, x1, x2, x3, rest_theta, weight, project, grad, hess
     if not ok:
         return 0.0
     d = theta - rest_theta
-    g9 = weight * d * u
-    H9 = weight * (np.outer(u, u) + d * H)
-    if project and d != 0.0 and not _is_psd(H9):
-        project_psd(H9)
+    gS = np.empty(9)
+    S = hinge_fade(a, b, c, gS)
+    if S < 1.0:  # a collapsing face: the faded energy's gradient, the Gauss-Newton Hessian
+        g9 = weight * (S * d * u + 0.5 * d * d * gS)
+        H9 = weight * S * np.outer(u, u)
+    else:
+        g9 = weight * d * u
+        H9 = weight * (np.outer(u, u) + d * H)
+        if project and d != 0.0 and not _is_psd(H9):
+            project_psd(H9)
     # (a, b, c) = (x1 - x0, x2 - x0, x3 - x0): x0 gets minus the sum, x1..x3 the blocks
     for k in range(3):
         for i in range(3):
@@ -254,7 +348,7 @@ def bending_element_into(x0, x1, x2, x3, rest_theta, weight, project, grad, hess
                     hess[i, 3 * (l + 1) + j] -= h
                     hess[3 * (k + 1) + i, j] -= h
                     hess[i, j] += h
-    return 0.5 * weight * d * d
+    return 0.5 * weight * S * d * d
 
 
 @njit(cache=True)
