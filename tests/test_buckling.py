@@ -5,7 +5,14 @@ import numpy as np
 import pytest
 from helpers import random_rest_triangle
 
-from cloth.physics.buckling import BucklingError, BucklingParams, compression_factor, face_alpha, filter_strain
+from cloth.physics.buckling import (
+    ALPHA_MIN,
+    BucklingError,
+    BucklingParams,
+    compression_factor,
+    face_alpha,
+    filter_strain,
+)
 from cloth.physics.membrane import deformation_gradient, green_strain, stvk_element
 
 # Central differences with step 1e-6 on O(1) coordinates: truncation ~1e-12, round-off ~1e-10
@@ -57,9 +64,29 @@ def test_filter_strain_hand_cases():
 def test_face_alpha_only_touches_out_of_frustum_faces():
     area = np.array([1.0, 2.0, 3.0, 4.0])
     out = np.array([False, True, True, False])
-    a = face_alpha(area, out, BucklingParams(k=1))
+    a = face_alpha(area, out, BucklingParams(k=1, alpha_min=0.0))
     assert np.allclose(a, [1.0, 1.0, 0.0, 1.0])  # eq 11 over the two out-of-frustum faces only
-    assert np.allclose(face_alpha(area, out, BucklingParams(mode="uniform")), [1, 0, 0, 1])
+    assert np.allclose(face_alpha(area, out, BucklingParams(mode="uniform", alpha_min=0.0)), [1, 0, 0, 1])
+
+
+def test_alpha_floor_keeps_every_compensated_face_some_compression_resistance():
+    """alpha >= alpha_min on the out-of-frustum faces (the largest face's eq 11 value is 0), eq 11
+    unchanged above the floor, faces in view at 1, uniform compensation at the floor."""
+    area = np.linspace(1.0, 2.0, 11)
+    out = np.ones(11, dtype=bool)
+    out[0] = False
+    floor = BucklingParams(k=3).alpha_min
+    assert floor == ALPHA_MIN > 0
+    a = face_alpha(area, out, BucklingParams(k=3))
+    raw = face_alpha(area, out, BucklingParams(k=3, alpha_min=0.0))
+    assert a[0] == 1.0 and raw[-1] == 0.0 and a[-1] == ALPHA_MIN
+    assert np.all(a[out] >= ALPHA_MIN)
+    above = raw >= ALPHA_MIN
+    assert above[1:-1].sum() >= 5 and np.array_equal(a[above], raw[above])
+    assert np.all(face_alpha(area, out, BucklingParams(mode="uniform"))[out] == ALPHA_MIN)
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(BucklingError, match="alpha_min"):
+            BucklingParams(alpha_min=bad)
 
 
 def _compressed_cases():

@@ -9,7 +9,9 @@ out-of-frustum faces, the compressive principal strains that the membrane sees a
     alpha_i = ((A_max - A_i) / (A_max - A_min))^k              (eq 11, :func:`compression_factor`)
 
 with A the material-space face areas and A_max, A_min their extremes over the out-of-frustum
-faces: the bigger a face, the more compressible. The membrane kernel (cloth.physics.membrane) applies
+faces: the bigger a face, the more compressible. Every compensated face keeps alpha >= ALPHA_MIN
+(`BucklingParams.alpha_min`; 0 gives the paper's eq 11 as written), so that none loses all its
+resistance to compression and collapses. The membrane kernel (cloth.physics.membrane) applies
 eq 10 inside its energy, gradient and Hessian, per face, from the alpha this module computes.
 This is a physical effect, independent of the view: mode=viewdep switches it on by default and
 mode=adaptive can use it too (it needs a camera to know which faces are out of the frustum).
@@ -20,6 +22,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+# Floor of alpha on the compensated faces. Eq 11 gives the largest out-of-frustum face alpha = 0:
+# no resistance to compression at all, so nothing stops it from collapsing to a line (where its
+# hinges lose their shape, cloth.physics.bending). With the floor every face keeps 1 % of its
+# membrane's compression stiffness (20 N/m for cotton, still 100 times below its stretch
+# stiffness' effect on a wrinkle), and eq 11's ordering of the faces is kept above it.
+ALPHA_MIN = 0.01
 
 
 class BucklingError(ValueError):
@@ -64,11 +73,14 @@ class BucklingParams:
     """Buckling compensation as a scene effect: alpha per out-of-frustum face, 1 elsewhere."""
 
     k: float = 10.0  # eq 11 exponent (the paper's k = 10)
-    mode: str = "adaptive"  # adaptive: eq 11 | uniform: alpha = 0 on every out-of-frustum face (Fig. 6 middle)
+    mode: str = "adaptive"  # adaptive: eq 11 | uniform: alpha = alpha_min on every out-of-frustum face (Fig. 6 middle)
+    alpha_min: float = ALPHA_MIN  # floor of every compensated face's alpha, in [0, 1] (ALPHA_MIN)
 
     def __post_init__(self):
         if not self.k >= 1:
             raise BucklingError(f"buckling.k must be >= 1, got {self.k}")
+        if not 0.0 <= self.alpha_min <= 1.0:
+            raise BucklingError(f"buckling.alpha_min must be in [0, 1], got {self.alpha_min}")
         if self.mode not in ("adaptive", "uniform"):
             raise BucklingError(f"buckling.mode must be 'adaptive' or 'uniform', got {self.mode!r}")
 
@@ -79,6 +91,7 @@ def face_alpha(area: np.ndarray, out_of_frustum: np.ndarray, params: BucklingPar
     out = np.asarray(out_of_frustum, dtype=bool)
     if out.any():
         alpha[out] = 0.0 if params.mode == "uniform" else compression_factor(area[out], params.k)
+        alpha[out] = np.maximum(alpha[out], params.alpha_min)
     return alpha
 
 
