@@ -96,7 +96,7 @@ def test_faded_gradient_matches_finite_differences(h):
     rng = np.random.default_rng(3)
     x = np.concatenate(_hinge(h)) + 1e-3 * h * rng.standard_normal(12)
     for project in PROJECTIONS:
-        def energy(y):
+        def energy(y, project=project):
             return bending_element(y[0:3], y[3:6], y[6:9], y[9:12], 0.2, WEIGHT, project)[0]
 
         g = bending_element(x[0:3], x[3:6], x[6:9], x[9:12], 0.2, WEIGHT, project)[1]
