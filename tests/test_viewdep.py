@@ -127,10 +127,11 @@ def test_buckling_compensation_sets_alpha_on_out_of_frustum_faces_only():
     out = cam.distance_to_frustum(c) > 0
     assert out.any() and (~out).any()
     assert np.all(membrane.alpha[~out] == 1.0)
-    assert membrane.alpha[out].min() == 0.0 and np.all(membrane.alpha[out] <= 1.0)
-    # the largest out-of-frustum face is fully compressible (eq 11)
+    floor = sim.buckling.alpha_min
+    assert membrane.alpha[out].min() == floor > 0 and np.all(membrane.alpha[out] <= 1.0)
+    # the largest out-of-frustum face is as compressible as the floor lets it be (eq 11 gives 0)
     area = sim.mesh.face_area
-    assert membrane.alpha[np.flatnonzero(out)[np.argmax(area[out])]] == 0.0
+    assert membrane.alpha[np.flatnonzero(out)[np.argmax(area[out])]] == floor
 
 
 def test_long_viewdep_run_under_an_orbit_with_a_cut_stays_finite_and_outside_obstacles():
