@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from cloth.core.records import PHASES
+from cloth.core.records import PHASES, STEP_CHECKS
 from cloth.io.checkpoint import FINAL_STATE_FILE, remove_checkpoint, save_checkpoint, save_final_state
 from cloth.io.manifest import write_json_atomic, write_parquet_atomic, write_text_atomic
 from cloth.io.obj import save_obj
@@ -88,7 +88,28 @@ def summarize(frames: pd.DataFrame) -> dict:
     if "solves_capped" in frames.columns:
         out["solves_capped_total"] = int(frames["solves_capped"].sum())
         out["frames_with_capped_solves"] = int((frames["solves_capped"] > 0).sum())
+    if "steps_rejected" in frames.columns:  # step control (cloth.simulation: MAX_STEP_HALVINGS)
+        rejected = frames["steps_rejected"].fillna(0).astype(int)
+        out["steps_rejected_total"] = int(rejected.sum())
+        for check in STEP_CHECKS:
+            col = f"steps_rejected_{check}"
+            if col in frames.columns:
+                out[f"{col}_total"] = int(frames[col].fillna(0).sum())
+        out["frames_with_rejected_steps"] = [int(f) for f in frames.loc[rejected > 0, "frame"]]
+        out["dt_min_s"] = float(frames["dt_min_s"].min())
     return out
+
+
+def rejected_steps_note(summary: dict) -> str | None:
+    """The run's note when step control took any step again at half its length (None if none)."""
+    n = summary.get("steps_rejected_total", 0)
+    if not n:
+        return None
+    kinds = ", ".join(f"{summary[f'steps_rejected_{c}_total']} {c}" for c in STEP_CHECKS
+                      if summary.get(f"steps_rejected_{c}_total"))
+    frames = summary["frames_with_rejected_steps"]
+    return (f"{n} step(s) in {len(frames)} frame(s) failed a check ({kinds}) and were taken again at half the length, "
+            f"down to {summary['dt_min_s']:.3g} s (steps_rejected in frames.parquet)")
 
 
 def capped_solves_note(summary: dict, max_iterations: int) -> str | None:
@@ -103,6 +124,7 @@ def capped_solves_note(summary: dict, max_iterations: int) -> str | None:
 
 # Per-frame columns that add up over the characters of a crowd (everything else is per character).
 CROWD_SUM_COLUMNS = ("faces", "verts", "nodes", "sim_s", "wall_s", "solver_iterations", "solves_capped", "contacts",
+                     "steps_rejected", *(f"steps_rejected_{c}" for c in STEP_CHECKS),
                      "faces_in_view",
                      "faces_back_facing", "faces_out_of_frame", "faces_compensated", "kinetic_energy_j", "remeshed",
                      "faces_sized", "faces_at_size_min", "faces_at_size_max", "faces_occluded")
@@ -180,6 +202,8 @@ def combine_crowd(character_dirs: list, out_dir: Path, errors: dict | None = Non
         rows["sim_time_s"] = frames[0]["sim_time_s"].iloc[:n].to_numpy()
         rows["max_speed_m_s"] = np.max([f["max_speed_m_s"].iloc[:n].to_numpy() for f in frames], axis=0)
         rows["min_face_quality"] = np.min([f["min_face_quality"].iloc[:n].to_numpy() for f in frames], axis=0)
+        if "dt_min_s" in frames[0].columns:
+            rows["dt_min_s"] = np.min([f["dt_min_s"].iloc[:n].to_numpy() for f in frames], axis=0)
         if "edge_at_size_min_m" in frames[0].columns:  # the characters' median realised edges: their median
             edges = np.array([f["edge_at_size_min_m"].iloc[:n].to_numpy(dtype=float) for f in frames])
             with np.errstate(all="ignore"), warnings.catch_warnings():
@@ -324,6 +348,9 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
         capped = capped_solves_note(summary, sim.solver.max_iterations)
         if capped is not None:  # never silent: the summary's notes, which the run prints
             summary["notes"].append(capped)
+        rejected = rejected_steps_note(summary)
+        if rejected is not None:
+            summary["notes"].append(rejected)
         if rows:
             summary["final_max_speed_m_s"] = float(rows[-1]["max_speed_m_s"])
             summary["final_kinetic_energy_j"] = float(rows[-1]["kinetic_energy_j"])

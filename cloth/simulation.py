@@ -12,7 +12,8 @@ DESIGN.md section 1, one named stage per line::
     buckling          mode's buckling (needs a camera): compression factors of eq 11
     steps              the scene's steps_per_frame (fewer for a character wholly out of view,
                        mode=viewdep; more when scene.obstacle_step asks it of a fast obstacle)
-    for each of the frame's steps:
+    for each of the frame's steps (step control: a step that fails its checks is undone and
+    taken again as two of half its length, at most MAX_STEP_HALVINGS times in a row):
         handles            a handle takes hold at its start_time, fades after its end_time, lets go
         obstacle_contact   'obstacles': contact constraints for the solve (start of the step)
         implicit step      force terms of the declared effects, linear solve; handles prescribed
@@ -21,6 +22,8 @@ DESIGN.md section 1, one named stage per line::
         obstacle_contact   'obstacles': projection out of the obstacles (end of the step)
         collisions         self_collision and/or obstacle_ccd (triangle-mesh obstacles, with a
                            thickness), one pass: proximity, CCD, impact zones
+        step checks        finite state, no node over max_speed, no jump of the kinetic energy,
+                           a collision pass that did not give up (the last accepted at the finest step)
         untangle           when that pass gave up (left collisions): before the next step
     per-frame record
 
@@ -50,6 +53,7 @@ from cloth.core.records import (
     PHASES,
     REMESH_RECORD,
     SIM_PHASES,
+    STEP_RECORD,
     STRAIN_LIMIT_RECORD,
     VIEW_RECORD,
 )
@@ -83,8 +87,28 @@ UNTANGLE_ITERATIONS = 30
 FORCE_EFFECTS = ("membrane", "bending", "gravity", "wind")
 
 
+# Step control. A step whose result fails a check (STEP_CHECKS) is undone (the state before it
+# restored) and taken again as two steps of half its length, each checked the same way, at most
+# MAX_STEP_HALVINGS times in a row: down to a step of dt / 16. A step that still fails then ends
+# the run (SimulationDiverged), except a collision pass that gave up: at the finest step it is
+# accepted and the cloth untangled before the next step, as without step control.
+MAX_STEP_HALVINGS = 4
+# A step may not raise the free nodes' kinetic energy above KE_JUMP_FACTOR times the energy the
+# cloth had to move with at its start: its kinetic energy, its elastic (membrane and bending)
+# energy, which a step may release into motion, and a floor, its mass moving at
+# KE_FLOOR_SPEED_M_S (so that a cloth at rest may start to fall and a body may strike it).
+# Implicit Euler dissipates: gravity, the handles and the obstacles are the only sources, and none
+# multiplies that energy tenfold in a step of a frame or less; one bad hinge did (issue 32: a
+# dancer's bending gradient went from 0.42 to 147 N in one step, and the cloth to 595 m/s within
+# the frame). Without the elastic energy in the budget, a stiff sheet (100 x cotton, the stability
+# suite's stiff_material) releasing 47 J of membrane energy into 1.7 J of motion was a jump.
+KE_JUMP_FACTOR = 10.0
+KE_FLOOR_SPEED_M_S = 1.0
+
+
 class SimulationDiverged(RuntimeError):
-    """The state became non-finite or a node exceeded the speed limit."""
+    """A step failed its checks (non-finite state, a node over the speed limit, a jump of the
+    kinetic energy) at every halving of its length that step control allows."""
 
 
 @dataclass(frozen=True)
@@ -215,8 +239,12 @@ class Simulation:
         self.frame = 0
         self.time = 0.0
         self.steps_taken = 0
-        self.dt = scene.dt  # s: this frame's step (a view-dependent run may take fewer, longer steps out of view)
-        self._substep = 0  # steps taken in the current frame
+        self.dt = scene.dt  # s: the current step (a view-dependent run may take fewer, longer steps out of
+        # view; step control halves it for a step taken again)
+        self._substep = 0  # steps taken (accepted) in the current frame
+        self._frame_dt = scene.dt  # s: this frame's step before any halving
+        self._ticks = 0  # the frame's time taken so far, in units of _frame_dt / 2**MAX_STEP_HALVINGS
+        self._step_ticks = 2 ** MAX_STEP_HALVINGS  # the current step's length in those units
         self.intersections_pending = 0  # crossings the last untangling left (it runs again next frame)
         self.untangle_due = True  # the start state has not been checked for crossings yet
         self.faces_compensated = 0
@@ -230,7 +258,8 @@ class Simulation:
         self.__dict__.update(state)
         if "stages" not in state:
             self.stages = plan_stages(self.scene, self.remesher, self.buckling)
-        for name, value in (("faces_compensated", 0), ("intersections_pending", 0), ("untangle_due", False)):
+        for name, value in (("faces_compensated", 0), ("intersections_pending", 0), ("untangle_due", False),
+                            ("_frame_dt", self.dt), ("_ticks", 0), ("_step_ticks", 2 ** MAX_STEP_HALVINGS)):
             self.__dict__.setdefault(name, value)
 
     @property
@@ -297,6 +326,7 @@ class Simulation:
         self.frame, self.time = frame, t
         self.steps_taken = frame * scene.steps_per_frame  # as if every frame took the scene's steps
         self.dt, self._substep = scene.dt, 0
+        self._frame_dt, self._ticks, self._step_ticks = scene.dt, 0, 2 ** MAX_STEP_HALVINGS
         self.intersections_pending = 0
         self.untangle_due = True  # the state may cross (another run's, transferred to this mesh)
         self._inside_at_start = None
@@ -334,7 +364,7 @@ class Simulation:
         t_start = time.perf_counter()
         timings = {p: 0.0 for p in PHASES}
         stats = {"steps": 0, "solver_iterations": 0, "solver_iterations_max": 0, "solver_residual": 0.0,
-                 "solves_capped": 0, "contacts": 0,
+                 "solves_capped": 0, "contacts": 0, **STEP_RECORD,
                  **REMESH_RECORD, **VIEW_RECORD, **COLLISION_RECORD, **STRAIN_LIMIT_RECORD}
         stages = self.stages
         changed = stages.remesh and self.remesher.remesh(self, timings, stats)
@@ -348,16 +378,13 @@ class Simulation:
         n_steps = self.scene.steps_per_frame if self.remesher is None else self.remesher.steps_for_frame(self)
         if self.scene.obstacle_step is not None and self.mesh_obstacles:
             n_steps = max(n_steps, self.obstacle_steps())
-        self.dt, self._substep = self.scene.frame_time / n_steps, 0
-        stats["steps"] = n_steps
+        self._frame_dt = self.scene.frame_time / n_steps
+        self._substep, self._ticks = 0, 0
+        stats["dt_min_s"] = self._frame_dt
         for _ in range(n_steps):
-            self.step(timings, stats)
-            if stages.untangle and self._step_gave_up:
-                # a collision pass gave up: the cloth may now cross itself or a body. Untangled
-                # before the next step, whose collision pass needs a clean start (a fixed dress
-                # kept 12 such crossings for 165 frames; untangled only at the next frame's
-                # start, frames 335-337 of its dance still ended crossing)
-                self._timed(timings, "collisions", self.untangle, stats)
+            self._controlled_step(0, timings, stats)
+        self.dt = self._frame_dt
+        stats["steps"] = self._substep  # n_steps, and one more for each step taken again as two
         self.frame += 1
         record = self.state_record()
         record.update(stats)
@@ -381,8 +408,100 @@ class Simulation:
                 speed = max(speed, float(np.sqrt((v * v).sum(axis=1).max())) if v.size else 0.0)
         return max(int(np.ceil(speed * scene.frame_time / (scene.obstacle_step * scene.thickness))), 1)
 
+    def _controlled_step(self, halvings: int, timings: dict, stats: dict) -> None:
+        """One step of the frame's step / 2**halvings under step control: taken, checked
+        (:meth:`step_failure`) and, if it fails, undone and taken as two steps of half the length.
+        Counts the rejections into `stats` (steps_rejected, steps_rejected_<check>, dt_min_s)."""
+        self.dt = self._frame_dt / 2 ** halvings
+        self._step_ticks = 2 ** (MAX_STEP_HALVINGS - halvings)
+        for handle in self.scene.handles:  # the phase of the step's start (idempotent: a retry's is the same)
+            handle.update(self.mesh.node_x, self.mesh.node_pinned, self.time)
+        saved = self._save_step_state()
+        self.step(timings, stats)
+        failure = self.step_failure(saved["kinetic_energy"])
+        finest = halvings == MAX_STEP_HALVINGS
+        if failure is not None and not (finest and failure == "collisions"):
+            stats["steps_rejected"] += 1
+            stats[f"steps_rejected_{failure}"] += 1
+            if finest:
+                raise SimulationDiverged(
+                    f"frame {self.frame + 1}: {self._failure_message(failure)} at t = {self.time:.4f} s, in a step "
+                    f"of {self.dt:.3g} s taken again {MAX_STEP_HALVINGS} times at half the length "
+                    f"(MAX_STEP_HALVINGS)")
+            self._restore_step_state(saved)
+            for _ in range(2):
+                self._controlled_step(halvings + 1, timings, stats)
+            return
+        self._substep += 1
+        stats["dt_min_s"] = min(stats["dt_min_s"], self.dt)
+        if self.stages.untangle and self._step_gave_up:
+            # a collision pass gave up at the finest step: the cloth may now cross itself or a
+            # body. Untangled before the next step, whose collision pass needs a clean start (a
+            # fixed dress kept 12 such crossings for 165 frames; untangled only at the next
+            # frame's start, frames 335-337 of its dance still ended crossing)
+            self._timed(timings, "collisions", self.untangle, stats)
+
+    def _free_kinetic_energy(self) -> tuple[float, float]:
+        """(kinetic energy of the free nodes in J, their mass in kg)."""
+        mesh = self.scene.mesh
+        free = ~mesh.node_pinned
+        m = mesh.node_m[free]
+        v = mesh.node_v[free]
+        return float(0.5 * np.sum(m * np.einsum("ij,ij->i", v, v))), float(m.sum())
+
+    def _save_step_state(self) -> dict:
+        """What a step changes, to undo it (positions, velocities, pins, the time, the warm start)."""
+        mesh = self.scene.mesh
+        return {"node_x": mesh.node_x.copy(), "node_v": mesh.node_v.copy(), "node_pinned": mesh.node_pinned.copy(),
+                "time": self.time, "ticks": self._ticks, "last_dv": self.last_dv, "last_energy": self.last_energy,
+                "steps_taken": self.steps_taken, "kinetic_energy": self._free_kinetic_energy()}
+
+    def _restore_step_state(self, saved: dict) -> None:
+        mesh = self.scene.mesh
+        mesh.node_x[:] = saved["node_x"]
+        mesh.node_v[:] = saved["node_v"]
+        mesh.node_pinned[:] = saved["node_pinned"]
+        self.time, self._ticks, self.steps_taken = saved["time"], saved["ticks"], saved["steps_taken"]
+        self.last_dv, self.last_energy = None, saved["last_energy"]  # a failed solve is no warm start
+        if self.stages.obstacle_contact:
+            self.obstacle_set.set_time(self.time)
+
+    def step_failure(self, kinetic_energy_before: tuple[float, float]) -> str | None:
+        """The first of STEP_CHECKS the step just taken fails, or None. `kinetic_energy_before`:
+        (J, kg) of the free nodes before it (:meth:`_free_kinetic_energy`)."""
+        mesh = self.scene.mesh
+        if not (np.all(np.isfinite(mesh.node_x)) and np.all(np.isfinite(mesh.node_v))):
+            return "non_finite"
+        if len(mesh.node_v) and float(np.max(np.einsum("ij,ij->i", mesh.node_v, mesh.node_v))) > self.max_speed ** 2:
+            return "speed"
+        if self._free_kinetic_energy()[0] > self._kinetic_energy_bound(kinetic_energy_before):
+            return "kinetic_energy"
+        if self._step_gave_up:
+            return "collisions"
+        return None
+
+    def _kinetic_energy_bound(self, kinetic_energy_before: tuple[float, float]) -> float:
+        """J: KE_JUMP_FACTOR x (the free nodes' kinetic energy before the step + the elastic energy
+        at its start + their mass at KE_FLOOR_SPEED_M_S)."""
+        ke_before, mass = kinetic_energy_before
+        energy = self.last_energy  # the implicit step's, at the step's start
+        elastic = max(float(energy.get("membrane", 0.0) + energy.get("bending", 0.0)), 0.0)
+        return KE_JUMP_FACTOR * (ke_before + elastic + 0.5 * mass * KE_FLOOR_SPEED_M_S ** 2)
+
+    def _failure_message(self, failure: str) -> str:
+        mesh = self.scene.mesh
+        if failure == "non_finite":
+            return "non-finite node positions or velocities"
+        if failure == "speed":
+            speed = float(np.sqrt(np.max(np.einsum("ij,ij->i", mesh.node_v, mesh.node_v))))
+            return f"node speed {speed:.3g} m/s exceeds max_speed = {self.max_speed:g} m/s"
+        ke, _ = self._free_kinetic_energy()
+        return (f"kinetic energy {ke:.3g} J more than KE_JUMP_FACTOR = {KE_JUMP_FACTOR:g} times the kinetic and "
+                f"elastic energy before the step (with a floor of the cloth's mass at {KE_FLOOR_SPEED_M_S:g} m/s)")
+
     def step(self, timings: dict, stats: dict) -> None:
-        """One implicit step with its contact and collision stages."""
+        """One implicit step of length self.dt with its contact and collision stages (unchecked:
+        :meth:`_controlled_step` checks it, and undoes it if it fails)."""
         stages, mesh, h = self.stages, self.scene.mesh, self.dt
         for handle in self.scene.handles:  # take hold, pin, let a spring fade, let go (Handle.update)
             handle.update(mesh.node_x, mesh.node_pinned, self.time)
@@ -398,7 +517,6 @@ class Simulation:
             self._timed(timings, "collisions", self._project_contacts, stats)
         if collide:  # cloth-obstacle (with obstacle_ccd) and cloth-cloth collisions, in one pass
             self._timed(timings, "collisions", self.resolve_collisions, x_start, h, stats, y_start)
-        self._check(stats)
 
     @staticmethod
     def _timed(timings: dict, phase: str, stage, *args):
@@ -453,12 +571,13 @@ class Simulation:
             self._fixed_targets(self.time + h), self.solver, self.last_dv, contacts,
         )
         self.steps_taken += 1
-        self._substep += 1
-        # frame start + steps within it: no round-off drift over long runs, so that a frame's
-        # time is exactly frame * frame_time (camera cuts and keyframes are given at such times)
-        k = self._substep
-        last = abs(k * h - scene.frame_time) <= 1e-9 * scene.frame_time  # the frame's last step
-        self.time = (self.frame + 1) * scene.frame_time if last else self.frame * scene.frame_time + k * h
+        # frame start + the steps taken within it, counted in exact units of the frame's step /
+        # 2**MAX_STEP_HALVINGS: no round-off drift over long runs, so that a frame's time is exactly
+        # frame * frame_time (camera cuts and keyframes are given at such times)
+        self._ticks += self._step_ticks
+        unit = self._frame_dt / 2 ** MAX_STEP_HALVINGS
+        last = abs(self._ticks * unit - scene.frame_time) <= 1e-9 * scene.frame_time  # the frame's last step
+        self.time = (self.frame + 1) * scene.frame_time if last else self.frame * scene.frame_time + self._ticks * unit
         timings["physics"] += s.time_physics_s
         timings["solve"] += s.time_solve_s
         stats["solver_iterations"] += s.iterations
@@ -556,17 +675,6 @@ class Simulation:
         stats["untangles"] += 1
         self.intersections_pending = int(s["intersections_left"])
         self.untangle_due = False
-
-    def _check(self, stats: dict) -> None:
-        mesh = self.scene.mesh
-        frame = self.frame + 1
-        if not (np.all(np.isfinite(mesh.node_x)) and np.all(np.isfinite(mesh.node_v))):
-            raise SimulationDiverged(f"frame {frame}: non-finite node positions or velocities at t = {self.time:.4f} s")
-        speed = float(np.sqrt(np.max(np.einsum("ij,ij->i", mesh.node_v, mesh.node_v))))
-        if speed > self.max_speed:
-            raise SimulationDiverged(
-                f"frame {frame}: node speed {speed:.3g} m/s exceeds max_speed = {self.max_speed:g} m/s "
-                f"at t = {self.time:.4f} s")
 
     # ---- the record ------------------------------------------------------------------------
     def view_counts(self) -> dict:

@@ -108,25 +108,36 @@ def test_a_fixed_mesh_run_untangles_a_start_state_that_crosses_a_mesh_obstacle(m
 
 def test_a_step_whose_collision_pass_gave_up_is_followed_by_an_untangling(monkeypatch):
     """A fixed mesh untangles only its start state, unless a step's collision response leaves
-    collisions: then the cloth is untangled before the frame's next step, so that the frame does
-    not end crossing, and the frame's record counts it."""
+    collisions. Step control first takes such a step again at half its length; a pass that gives
+    up at every halving is accepted at the finest step, and the cloth is untangled right after it,
+    before the frame's next step, so that the frame does not end crossing; the record counts it."""
     calls = []
     original = simulation.Simulation.untangle
     monkeypatch.setattr(simulation.Simulation, "untangle",
                         lambda self, stats: (calls.append((self.frame, self._substep)), original(self, stats)))
     real = simulation.resolve_self_collisions
-    give_up = [(1, 1), (1, 2)]  # the first two steps of the second frame (frame index, steps taken in it)
+    sim = build_sim(*LAYERED, "mode=nonadaptive")
+    n, h = sim.scene.steps_per_frame, sim.scene.dt
+    assert n > 2  # each untangling comes before a later step of the frame
+    first_step_end = sim.scene.frame_time + h  # frame 1's first step: every pass within it gives up
 
     def response(*a, **k):
         s = real(*a, **k)
-        if (sim.frame, sim._substep) in give_up:
+        if sim.frame == 1 and sim.time <= first_step_end * (1 + 1e-12):  # sim.time: the step's end
             s["self_collisions_left"] = 1  # as when the impact-zone rounds run out
         return s
 
     monkeypatch.setattr(simulation, "resolve_self_collisions", response)
-    sim = build_sim(*LAYERED, "mode=nonadaptive")
-    assert sim.scene.steps_per_frame > 2  # each untangling comes before a later step of the frame
     records = [sim.advance_frame() for _ in range(4)]
-    assert calls == [(0, 0), *give_up]  # the start state, and right after each step that gave up
-    assert [r["untangles"] for r in records] == [1, 2, 0, 0]
+    finest = 2 ** simulation.MAX_STEP_HALVINGS  # steps of h / 16 that cover the first step
+    # the start state, then after each of the finest steps, the k-th of them the k-th step taken
+    assert calls == [(0, 0), *((1, k) for k in range(1, finest + 1))]
+    assert [r["untangles"] for r in records] == [1, finest, 0, 0]
+    # rejected: the step, its two halves, their four halves, ... down to the finest (accepted)
+    assert records[1]["steps_rejected"] == records[1]["steps_rejected_collisions"] == finest - 1
+    assert records[1]["steps"] == n - 1 + finest
+    assert records[1]["dt_min_s"] == pytest.approx(h / finest, rel=1e-12)
     assert records[1]["self_collisions_left"] == 1 and records[2]["self_collisions_left"] == 0
+    assert [r["steps_rejected"] for r in (records[0], records[2], records[3])] == [0, 0, 0]
+    assert records[2]["dt_min_s"] == pytest.approx(h, rel=1e-12)
+    assert sim.time == pytest.approx(4 * sim.scene.frame_time, rel=1e-12)

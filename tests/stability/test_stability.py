@@ -18,20 +18,28 @@ QUALITY_MIN. The cases:
 - crushed_sheet_fixed: the same, nonadaptive, 48 cells along the strip (1,440 faces);
 - thin_triangles: layered sheets from an input grid of cells 12x longer than wide, adaptive;
 - thin_garment: solo_dancer's skirt from cells 12x longer across than around, adaptive, with
-  self-collision.
+  self-collision;
+- dancer_nu_out_0.3: the standing dancer, camera on her torso, skirt coarsened to nu_out = 0.3,
+  80 frames (it diverged at frame 59 in the main job before step control and the bending fade).
 
+Each for the seeds SEEDS. karate_no_floor (150 frames) is in `python -m experiments.stability --long`.
 The larger versions (scale=paper, 100 frames) are `python -m experiments.stability`.
 """
 
 import pytest
 
-from experiments.stability import CASE_NAMES, QUALITY_MIN, case, run_case
+from experiments.stability import QUALITY_MIN, SHORT_CASE_NAMES, case, run_case
+
+# Seeds of the scenes' jitter each case runs with here (python -m experiments.stability: 5): a case
+# that passes for one trajectory and fails for the next says nothing about the method.
+SEEDS = (0, 1)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("case", [case(n) for n in CASE_NAMES], ids=CASE_NAMES)
-def test_case_stays_stable(case):
-    row = run_case(case, case.frames_small, "small")
+@pytest.mark.parametrize("seed", SEEDS)
+@pytest.mark.parametrize("case", [case(n) for n in SHORT_CASE_NAMES], ids=SHORT_CASE_NAMES)
+def test_case_stays_stable(case, seed):
+    row = run_case(case, case.frames_small, "small", seed)
     assert row["error"] == "" and row["frames_run"] == case.frames_small, row
     assert row["finite"], row
     assert row["max_kinetic_energy_j"] <= row["kinetic_energy_bound_j"], row
