@@ -233,3 +233,29 @@ def test_a_handle_that_starts_late_and_fades_runs_its_phases(tmp_path):
     assert summary["frames_completed"] == 5
     pinned = [bool(load_state(p)["node_pinned"].any()) for p in sorted((out / "states").glob("frame_*.npz"))]
     assert pinned == [False, False, False, True, False, False]
+
+
+def test_seed_0_is_the_confs_own_mesh_and_other_seeds_move_only_the_free_nodes(tmp_path):
+    """An ARCSim scene's seed: 0 starts from the conf's mesh (what ARCSim's output is compared
+    with); s > 0 adds seeded noise of ARCSIM_JITTER to the nodes no handle holds, the same for the
+    same seed. A bad seed or jitter is refused naming it."""
+    from cloth.scenes.arcsim import ARCSIM_JITTER
+
+    conf = str(_write_scene(tmp_path))
+    base = arcsim_scene(conf=conf, mode_mesh="uniform", fixed_edge=0.1)
+    x0 = base.mesh.node_x
+    held = np.concatenate([h.nodes for h in base.handles])
+    np.testing.assert_array_equal(arcsim_scene(conf=conf, mode_mesh="uniform", fixed_edge=0.1, seed=0).mesh.node_x, x0)
+    one = arcsim_scene(conf=conf, mode_mesh="uniform", fixed_edge=0.1, seed=1).mesh.node_x
+    again = arcsim_scene(conf=conf, mode_mesh="uniform", fixed_edge=0.1, seed=1).mesh.node_x
+    two = arcsim_scene(conf=conf, mode_mesh="uniform", fixed_edge=0.1, seed=2).mesh.node_x
+    np.testing.assert_array_equal(one, again)
+    assert np.abs(one - two).max() > 0
+    np.testing.assert_array_equal(one[held], x0[held])
+    free = np.setdiff1d(np.arange(len(x0)), held)
+    d = one[free] - x0[free]
+    assert np.all(d != 0)
+    assert np.abs(d).max() <= 6 * ARCSIM_JITTER  # a normal deviate beyond 6 sigma: odds 1e-9 a draw
+    for bad in ({"seed": -1}, {"jitter": -1e-4}, {"jitter": float("nan")}):
+        with pytest.raises(SceneError, match=next(iter(bad))):
+            arcsim_scene(conf=conf, **bad)

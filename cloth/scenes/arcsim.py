@@ -312,13 +312,26 @@ def _push_out(mesh: Mesh, obstacle, thickness: float) -> None:
     resolve_obstacle_contacts(mesh.node_x, scratch_v, mesh.node_pinned, obstacles, thickness, 0.0, 1.0)
 
 
+# m: standard deviation (each axis) of the seeded noise on the free cloth nodes of an ARCSim scene
+# run with seed > 0 (the characters' CHARACTER_JITTER): a fiftieth of ARCSim's 5 mm thickness, so
+# that seeds give distinct trajectories of the same scene.
+ARCSIM_JITTER = 1e-4
+
+
 def arcsim_scene(material=None, *, conf: str | None = None, root: str | None = None, mode_mesh: str = "input",
-                 fixed_edge: float | None = None, size_factor: float = 1.0, effects=(), seed: int = 0) -> Scene:
+                 fixed_edge: float | None = None, size_factor: float = 1.0, effects=(), seed: int = 0,
+                 jitter: float = ARCSIM_JITTER) -> Scene:
     """The ARCSim scene of `conf` (module docstring). `material` (the run's material group) is
     unused: the conf names its own. `mode_mesh`: "input" (the OBJ as it is, for the remeshing
     modes) or "uniform" (remeshed to edges of `fixed_edge` m, default the conf's smallest size x
-    `size_factor`: the fixed mesh of mode=nonadaptive). `seed` is unused (ARCSim scenes add no
-    noise)."""
+    `size_factor`: the fixed mesh of mode=nonadaptive). `seed` 0 starts from the conf's own mesh
+    (what ARCSim's output is compared with); a seed s > 0 adds seeded noise of `jitter` m (standard
+    deviation, each axis) to the cloth nodes no handle holds, so that seeds give distinct
+    trajectories."""
+    if not (isinstance(seed, int) and seed >= 0):
+        raise SceneError(f"scene 'arcsim': seed must be an integer >= 0, got {seed!r}")
+    if not (isinstance(jitter, (int, float)) and math.isfinite(jitter) and jitter >= 0):
+        raise SceneError(f"scene 'arcsim': jitter must be >= 0 m, got {jitter!r}")
     if conf is None:
         raise SceneError("scene 'arcsim': scene.params.conf is required: the path of an ARCSim .json config")
     if mode_mesh not in ("input", "uniform"):
@@ -346,6 +359,13 @@ def arcsim_scene(material=None, *, conf: str | None = None, root: str | None = N
         mesh = uniform_mesh(mesh, handles, float(fixed_edge), measured.density)
         if obstacle is not None:  # the new nodes on chords of the coarse input around a body lie inside it
             _push_out(mesh, obstacle, float(cfg.magic["repulsion_thickness"]))
+    if seed > 0 and jitter > 0:
+        held = np.zeros(mesh.n_nodes, dtype=bool)
+        for h in handles:
+            held[h.nodes] = True
+        noise = jitter * np.random.default_rng(seed).standard_normal(mesh.node_x.shape)
+        noise[held | mesh.node_pinned] = 0.0
+        mesh.node_x += noise
     w = cfg.wind
     wind = (Wind(velocity=tuple(float(v) for v in w.velocity), drag=0.0, density=float(w.density),
                  drag_tangential=float(w.drag)) if "wind" in scene_effects else None)
