@@ -38,6 +38,7 @@ bending fade (cloth.physics.bending: HINGE_FADE_HEIGHT).
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -49,7 +50,7 @@ from omegaconf import open_dict
 
 from cloth.collision.untangle import find_intersections
 from cloth.core.records import STEP_CHECKS
-from cloth.io.manifest import write_text_atomic
+from cloth.io.manifest import code_version, write_text_atomic
 from experiments.build import build_simulation
 from experiments.compare_modes import markdown
 
@@ -202,6 +203,10 @@ def main(argv=None) -> None:
     names = args.cases or (CASE_NAMES if args.long else SHORT_CASE_NAMES)
     out = args.out / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     out.mkdir(parents=True, exist_ok=True)
+    code = code_version()
+    header = (f"Stability suite, scale={args.scale}, seeds 0-{args.seeds - 1}, commit {code['git_commit']}"
+              f"{' (with uncommitted changes)' if code['git_dirty'] else ''}, {datetime.now():%Y-%m-%d}: "
+              f"`python -m experiments.stability {' '.join(argv if argv is not None else sys.argv[1:])}`\n\n")
     rows = []
     for name in names:
         c = case(name)
@@ -214,7 +219,7 @@ def main(argv=None) -> None:
             table = pd.DataFrame(rows)  # written after every run: a killed run keeps what it had
             write_text_atomic(out / "table.csv", table.to_csv(index=False))
             write_text_atomic(out / "table.md", markdown(table.drop(columns=["what"])))
-            write_text_atomic(out / "cases.md", markdown(case_table(table)))
+            write_text_atomic(out / "cases.md", header + markdown(case_table(table)))
     print(table.drop(columns=["what"]).to_string(index=False))
     print()
     print(case_table(table).to_string(index=False))

@@ -47,3 +47,13 @@ def test_case_stays_stable(case, seed):
     assert row["crossings_at_end"] == 0, row
     assert row["min_face_quality"] >= QUALITY_MIN, row
     assert row["ok"]
+
+
+@pytest.mark.parametrize("argv", [["--seeds", "0"], ["--frames", "0"], ["--cases", "nope"]])
+def test_a_bad_argument_stops_before_any_run(argv, tmp_path, capsys):
+    from experiments.stability import main
+
+    with pytest.raises(SystemExit) as info:
+        main([*argv, "--out", str(tmp_path)])
+    assert info.value.code == 2 and argv[0] in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())
