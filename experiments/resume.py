@@ -23,7 +23,9 @@ backend (`crowd_backend`, experiments.crowd), then recombines the crowd's record
 Refused, with one message and exit code 2: a folder that is not a run folder, a run that
 already completed, a run that diverged (it is deterministic: it would diverge again), a run
 without a checkpoint (killed before its first one, or ``output.checkpoint_every=0``: run it
-again). Exit code 3: the resumed run stopped (diverged or failed), as experiments.run.
+again), a checkpoint that cannot be read, or one that refers to anything but the project's
+classes, numpy arrays and a few builtins (cloth.io.checkpoint.UnsafeCheckpoint: it is never
+loaded, as run folders are shared and a pickle could run any code). Exit code 3: the resumed run stopped (diverged or failed), as experiments.run.
 A checkpoint written by other code (git commit, uncommitted changes, package versions) is
 resumed with a warning: the result may then differ from an uninterrupted run.
 """
@@ -196,9 +198,10 @@ def resume(run_dir, progress: bool | None = None) -> dict:
         return resume_crowd(cfg, run_dir, dancers)
     try:
         ckpt = load_checkpoint(run_dir)
-    except CheckpointError as exc:
-        raise ResumeError(f"{exc}: the run was killed before its first checkpoint or ran with "
-                          f"output.checkpoint_every=0; run it again") from None
+    except CheckpointError as exc:  # the cause below only when there is no checkpoint file
+        raise ResumeError(f"{exc}" if checkpoint_path(run_dir).is_file() else (
+            f"{exc}: the run was killed before its first checkpoint or ran with output.checkpoint_every=0; "
+            f"run it again")) from None
     warning = _code_warning(run_dir, ckpt.code)
     if warning:
         print(warning, file=sys.stderr)
@@ -215,7 +218,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         summary = resume(args.run_dir, progress=False if args.no_progress else None)
-    except ResumeError as exc:
+    except (ResumeError, CheckpointError) as exc:  # CheckpointError: a crowd character's (resume_character)
         print(f"cannot resume: {exc}", file=sys.stderr)
         return 2
     except SimulationDiverged as exc:
