@@ -25,7 +25,8 @@ already completed, a run that diverged (it is deterministic: it would diverge ag
 without a checkpoint (killed before its first one, or ``output.checkpoint_every=0``: run it
 again), a checkpoint that cannot be read, or one that refers to anything but the project's
 classes, numpy arrays and a few builtins (cloth.io.checkpoint.UnsafeCheckpoint: it is never
-loaded, as run folders are shared and a pickle could run any code). Exit code 3: the resumed run stopped (diverged or failed), as experiments.run.
+loaded, as run folders are shared and a pickle could run any code). Exit code 3: the resumed
+run stopped (diverged or failed), as experiments.run.
 A checkpoint written by other code (git commit, uncommitted changes, package versions) is
 resumed with a warning: the result may then differ from an uninterrupted run.
 """
