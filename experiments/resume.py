@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
 from pathlib import Path
 
@@ -44,6 +45,7 @@ from omegaconf import DictConfig, OmegaConf
 from cloth.io.checkpoint import CHECKPOINT_DIR, CHECKPOINT_INFO, CheckpointError, checkpoint_path, load_checkpoint
 from cloth.io.manifest import code_version, environment_manifest, write_json_atomic, write_parquet_atomic
 from cloth.runner import combine_crowd, run
+from cloth.signals import Terminated, sigterm_interrupts
 from cloth.simulation import SimulationDiverged
 from experiments.build import ConfigError, crowd_backend, crowd_size, run_frames
 from experiments.crowd import run_characters, where
@@ -218,10 +220,16 @@ def main(argv=None) -> int:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
     try:
-        summary = resume(args.run_dir, progress=False if args.no_progress else None)
+        with sigterm_interrupts():  # a scheduler's SIGTERM stops the run as Ctrl-C does, its records written
+            summary = resume(args.run_dir, progress=False if args.no_progress else None)
     except (ResumeError, CheckpointError) as exc:  # CheckpointError: a crowd character's (resume_character)
         print(f"cannot resume: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt as exc:
+        signum = exc.signum if isinstance(exc, Terminated) else signal.SIGINT
+        print(f"interrupted ({signal.Signals(signum).name}): the frames so far are in {args.run_dir}; "
+              f"continue with: python -m experiments.resume {args.run_dir}", file=sys.stderr)
+        return 128 + signum
     except SimulationDiverged as exc:
         print(f"run stopped: {exc}\nframes written so far are in {args.run_dir}", file=sys.stderr)
         return 3

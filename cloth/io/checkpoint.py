@@ -7,7 +7,8 @@ solver's warm start, force-term data, camera path, character, obstacles, handles
 with the per-frame records written so far. Everything the next frames depend on lives in that
 object, so unpickling it, in this process or a new one, continues bit for bit (a test kills a
 run and resumes it). Only the latest checkpoint is kept; it is written atomically (temporary
-file, then rename), so a kill while writing leaves the previous one intact. Beside it,
+file, fsynced, then renamed, and the folder fsynced), so a kill while writing leaves the previous
+one intact; the temporary file a SIGKILL leaves is removed at the run's next start and end. Beside it,
 ``checkpoint/state.json`` says which frame it holds and which code wrote it. Size: about 3 kB
 per face, mostly the force terms' per-element Hessian buffers (3.6 MB for the 1,152-face
 sheet_on_sphere at scale=small, 58 MB at 18,432 faces, scale=paper; pickling takes 30 ms).
@@ -42,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cloth.io.manifest import atomic_write, code_version, write_json_atomic
+from cloth.io.manifest import atomic_write, code_version, remove_stale_temp_files, write_json_atomic
 
 CHECKPOINT_FORMAT = 1  # bump when the pickled payload's layout changes
 CHECKPOINT_DIR = "checkpoint"
@@ -239,9 +240,10 @@ def remove_checkpoint(run_dir) -> None:
     path = checkpoint_path(run_dir)
     path.unlink(missing_ok=True)
     (path.parent / CHECKPOINT_INFO).unlink(missing_ok=True)
+    remove_stale_temp_files(path.parent)  # of a checkpoint write that a SIGKILL stopped
     try:
         path.parent.rmdir()
-    except OSError:  # not empty (a stray temporary file of a killed writer) or absent
+    except OSError:  # absent, or holding files of someone else's
         pass
 
 
