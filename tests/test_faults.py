@@ -67,6 +67,42 @@ def test_sigterm_stops_a_run_as_ctrl_c_does_and_it_resumes(tmp_path, monkeypatch
     assert not _temp_files(run)
 
 
+def test_sigterm_during_a_resume_is_one_line_and_exit_143(tmp_path, monkeypatch, capsys):
+    run = tmp_path / "run"
+    cfg = compose_config("scene=hanging_sheet", "frames=5", "output.checkpoint_every=1", *NO_OUTPUT)
+    with monkeypatch.context() as m:
+        _sigterm_at_call(m, 2)
+        with pytest.raises(Terminated):
+            run_from_config(cfg, run)
+    with monkeypatch.context() as m:
+        _sigterm_at_call(m, 2)  # the resumed run's second frame (frame 3)
+        assert resume_mod.main([str(run), "--no-progress"]) == 128 + signal.SIGTERM
+    err = capsys.readouterr().err.strip()
+    assert err == (f"interrupted (SIGTERM): the frames so far are in {run}; continue with: "
+                   f"python -m experiments.resume {run}")
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["status"] == "interrupted" and summary["frames_completed"] == 2
+    assert resume_mod.main([str(run), "--no-progress"]) == 0
+    assert json.loads((run / "summary.json").read_text())["frames_completed"] == 5
+
+
+def test_sigterm_to_a_crowd_leaves_it_interrupted_and_resumable(tmp_path, monkeypatch):
+    """The characters one after the other in this process (crowd_jobs=1): the runner of the
+    character that was running writes its records, and the crowd combines what there is."""
+    run = tmp_path / "crowd"
+    cfg = compose_config("scene=multiple_dancers", "mode=viewdep", "scene.params.dancers=2", "crowd_jobs=1",
+                         "frames=3", "output.checkpoint_every=1", *NO_OUTPUT)
+    with monkeypatch.context() as m:
+        _sigterm_at_call(m, 5)  # dancer_00 completes (3 calls); dancer_01 is stopped advancing frame 2
+        with pytest.raises(Terminated):
+            run_from_config(cfg, run)
+    status = [json.loads((run / d / "summary.json").read_text())["status"] for d in ("dancer_00", "dancer_01")]
+    assert status == ["completed", "interrupted"]
+    assert json.loads((run / "summary.json").read_text())["status"] == "interrupted"
+    summary = resume_mod.resume(run, progress=False)
+    assert summary["status"] == "completed" and summary["frames_completed"] == 3
+
+
 def test_the_handler_only_in_the_main_thread_and_the_previous_one_back(tmp_path):
     import threading
 
