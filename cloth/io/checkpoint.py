@@ -131,8 +131,8 @@ class _Unpickler(pickle._Unpickler):
         project = module == "cloth" or module.startswith("cloth.")
         if not project and (module, name) not in ALLOWED_GLOBALS:
             raise UnsafeCheckpoint(what)
-        if project and any(part.startswith("__") for part in name.split(".")):
-            raise UnsafeCheckpoint(what)
+        if project and any(part.startswith("__") for part in (*module.split("."), *name.split("."))):
+            raise UnsafeCheckpoint(what)  # no cloth.__main__, no Simulation.__init__ or __globals__
         obj = importlib.import_module(module)  # a module of cloth, numpy, scipy or the standard library
         for part in name.split("."):
             obj = getattr(obj, part)
