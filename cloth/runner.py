@@ -25,13 +25,14 @@ import pandas as pd
 from tqdm import tqdm
 
 from cloth.core.records import PHASES, STEP_CHECKS
-from cloth.io.checkpoint import FINAL_STATE_FILE, remove_checkpoint, save_checkpoint, save_final_state
-from cloth.io.manifest import write_json_atomic, write_parquet_atomic, write_text_atomic
+from cloth.io.checkpoint import CHECKPOINT_DIR, FINAL_STATE_FILE, remove_checkpoint, save_checkpoint, save_final_state
+from cloth.io.manifest import remove_stale_temp_files, write_json_atomic, write_parquet_atomic, write_text_atomic
 from cloth.io.obj import save_obj
 from cloth.io.recorder import Recorder
 from cloth.io.states import save_state
 from cloth.io.stills import OBSTACLE_RGB, mesh_triangles, obstacle_triangles, render_still
 from cloth.physics.linsolve import resolve_method
+from cloth.signals import Terminated, sigterm_interrupts
 from cloth.simulation import Simulation, SimulationDiverged
 from cloth.view.factors import face_geometry, face_view_data, spatial_view_factor
 from cloth.view.viewdep import ViewParams
@@ -262,6 +263,15 @@ def write_still(sim, path: Path) -> Path:
                         title=f"{sim.scene.name}  frame {sim.frame}  t = {sim.time:.2f} s  {sim.mesh.n_faces} faces")
 
 
+def remove_stale_temp_files_of_run(out_dir) -> list[Path]:
+    """The temporary files that writers killed outright (SIGKILL) left in a run folder and the
+    sub-folders a run writes (cloth.io.manifest.remove_stale_temp_files); returns those removed."""
+    out_dir = Path(out_dir)
+    return [p for d in (out_dir, out_dir / CHECKPOINT_DIR, out_dir / "states", out_dir / "stills", out_dir / "obj")
+            for p in remove_stale_temp_files(d)]
+
+
+@sigterm_interrupts()  # SIGTERM (a scheduler's time limit) stops a run as Ctrl-C does: its records are written
 def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None = None,
         obj_every: int = 0, progress: bool = False, stills_every: int = 0, states_every: int = 1,
         checkpoint_every: int = 0, rows: list | None = None) -> dict:
@@ -277,10 +287,13 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
     `n_frames` and its records are those of an uninterrupted run.
     A diverged run (non-finite state or a node above the speed limit) stops at the frame where
     it happened; its summary has status 'diverged' and the message, and the exception is
-    re-raised after everything is written.
+    re-raised after everything is written. Ctrl-C and SIGTERM (a scheduler's time limit:
+    cloth.signals, in the main thread) stop it with status 'interrupted', also written, and the
+    KeyboardInterrupt (Terminated) goes on; the run continues from its last checkpoint.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    remove_stale_temp_files_of_run(out_dir)  # of a writer that a SIGKILL stopped (a killed run, now resumed)
     recorder = recorder or Recorder()
     rows: list[dict] = list(rows or [])  # continuing from a checkpoint: its records
     status, message, error = "interrupted", "", None
@@ -331,6 +344,9 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
         status = "completed"
     except SimulationDiverged as exc:
         status, message, error = "diverged", str(exc), exc
+    except KeyboardInterrupt as exc:  # status 'interrupted', resumable from the last checkpoint
+        message = f"stopped by {exc}" if isinstance(exc, Terminated) else "stopped by Ctrl-C (KeyboardInterrupt)"
+        raise
     except Exception as exc:  # keep what was written, say what happened, then re-raise
         status, message = "failed", f"{type(exc).__name__}: {exc}"
         raise
@@ -358,6 +374,7 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
         write_json_atomic(out_dir / "summary.json", summary)
         if status == "completed":  # after the summary: a kill in between still leaves a resumable run
             remove_checkpoint(out_dir)
+        remove_stale_temp_files_of_run(out_dir)
         recorder.close()
     if error is not None:
         raise error

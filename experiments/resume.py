@@ -23,7 +23,10 @@ backend (`crowd_backend`, experiments.crowd), then recombines the crowd's record
 Refused, with one message and exit code 2: a folder that is not a run folder, a run that
 already completed, a run that diverged (it is deterministic: it would diverge again), a run
 without a checkpoint (killed before its first one, or ``output.checkpoint_every=0``: run it
-again). Exit code 3: the resumed run stopped (diverged or failed), as experiments.run.
+again), a checkpoint that cannot be read, or one that refers to anything but the project's
+classes, numpy arrays and a few builtins (cloth.io.checkpoint.UnsafeCheckpoint: it is never
+loaded, as run folders are shared and a pickle could run any code). Exit code 3: the resumed
+run stopped (diverged or failed), as experiments.run.
 A checkpoint written by other code (git commit, uncommitted changes, package versions) is
 resumed with a warning: the result may then differ from an uninterrupted run.
 """
@@ -32,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
 from pathlib import Path
 
@@ -41,6 +45,7 @@ from omegaconf import DictConfig, OmegaConf
 from cloth.io.checkpoint import CHECKPOINT_DIR, CHECKPOINT_INFO, CheckpointError, checkpoint_path, load_checkpoint
 from cloth.io.manifest import code_version, environment_manifest, write_json_atomic, write_parquet_atomic
 from cloth.runner import combine_crowd, run
+from cloth.signals import Terminated, sigterm_interrupts
 from cloth.simulation import SimulationDiverged
 from experiments.build import ConfigError, crowd_backend, crowd_size, run_frames
 from experiments.crowd import run_characters, where
@@ -196,9 +201,10 @@ def resume(run_dir, progress: bool | None = None) -> dict:
         return resume_crowd(cfg, run_dir, dancers)
     try:
         ckpt = load_checkpoint(run_dir)
-    except CheckpointError as exc:
-        raise ResumeError(f"{exc}: the run was killed before its first checkpoint or ran with "
-                          f"output.checkpoint_every=0; run it again") from None
+    except CheckpointError as exc:  # the cause below only when there is no checkpoint file
+        raise ResumeError(f"{exc}" if checkpoint_path(run_dir).is_file() else (
+            f"{exc}: the run was killed before its first checkpoint or ran with output.checkpoint_every=0; "
+            f"run it again")) from None
     warning = _code_warning(run_dir, ckpt.code)
     if warning:
         print(warning, file=sys.stderr)
@@ -214,10 +220,16 @@ def main(argv=None) -> int:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
     try:
-        summary = resume(args.run_dir, progress=False if args.no_progress else None)
-    except ResumeError as exc:
+        with sigterm_interrupts():  # a scheduler's SIGTERM stops the run as Ctrl-C does, its records written
+            summary = resume(args.run_dir, progress=False if args.no_progress else None)
+    except (ResumeError, CheckpointError) as exc:  # CheckpointError: a crowd character's (resume_character)
         print(f"cannot resume: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt as exc:
+        signum = exc.signum if isinstance(exc, Terminated) else signal.SIGINT
+        print(f"interrupted ({signal.Signals(signum).name}): the frames so far are in {args.run_dir}; "
+              f"continue with: python -m experiments.resume {args.run_dir}", file=sys.stderr)
+        return 128 + signum
     except SimulationDiverged as exc:
         print(f"run stopped: {exc}\nframes written so far are in {args.run_dir}", file=sys.stderr)
         return 3

@@ -31,6 +31,7 @@ from omegaconf import DictConfig, OmegaConf
 from cloth.io.manifest import environment_manifest, write_json_atomic, write_text_atomic
 from cloth.io.recorder import RerunRecorder
 from cloth.scenes.registry import CROWDS
+from cloth.signals import sigterm_interrupts
 from cloth.simulation import SimulationDiverged
 from experiments.build import ConfigError, build_simulation, crowd_backend, crowd_size
 from experiments.crowd import run_characters, where
@@ -150,7 +151,8 @@ def main(cfg: DictConfig) -> None:
     crowd = max(1, int(cfg.get("crowd_jobs", 1) or 1)) if cfg.scene.name in CROWDS else 1
     share_cores(launcher_jobs * crowd)
     try:
-        summary = run_from_config(cfg, out_dir)
+        with sigterm_interrupts():  # a scheduler's SIGTERM stops the run as Ctrl-C does, its records written
+            summary = run_from_config(cfg, out_dir)
     except ConfigError as exc:
         print(f"config error: {exc}", file=sys.stderr)
         sys.exit(2)

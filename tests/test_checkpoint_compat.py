@@ -3,12 +3,11 @@
 
 import importlib
 import pickle
-from types import SimpleNamespace
 
 import pytest
 from helpers import COTTON
 
-from cloth.io.checkpoint import MOVED_MODULES, MOVED_NAMES, CheckpointError, load_checkpoint
+from cloth.io.checkpoint import MOVED_MODULES, MOVED_NAMES, Checkpoint, CheckpointError, load_checkpoint
 from cloth.view.camera import Camera
 
 CAMERA = Camera(position=(0.0, -3.0, 1.0), look_at=(0.0, 0.0, 0.5))
@@ -16,9 +15,11 @@ CAMERA = Camera(position=(0.0, -3.0, 1.0), look_at=(0.0, 0.0, 0.5))
 
 def flat_package_checkpoint(run_dir, obj, new_module: str, old_module: str):
     """A checkpoint folder whose pickle names `old_module` for `obj`'s class, as the flat package
-    wrote it (protocol 2 writes a class reference as the text 'module\\nname\\n')."""
-    sim = SimpleNamespace(frame=0, obj=obj)  # what the loader checks of a simulation: its frame
-    data = pickle.dumps({"format": 1, "frame": 0, "time": 0.0, "rows": [], "sim": sim}, protocol=2)
+    wrote it (protocols 2 and 3 write a class reference as the text 'module\\nname\\n'). The
+    simulation's stand-in is a class of cloth with a frame (what the loader checks of a simulation),
+    holding `obj`: a checkpoint may refer only to the project's classes."""
+    sim = Checkpoint(sim=obj, rows=[], frame=0, time=0.0)
+    data = pickle.dumps({"format": 1, "frame": 0, "time": 0.0, "rows": [], "sim": sim}, protocol=3)
     new, old = f"{new_module}\n".encode(), f"{old_module}\n".encode()
     assert data.count(new) == 1
     path = run_dir / "checkpoint" / "state.pkl"
@@ -33,7 +34,7 @@ def test_a_checkpoint_of_the_flat_package_loads(tmp_path, obj, new, old):
     path = flat_package_checkpoint(tmp_path, obj, new, old)
     with pytest.raises((ModuleNotFoundError, AttributeError)):
         pickle.loads(path.read_bytes())  # a plain unpickler does not find the class
-    assert load_checkpoint(tmp_path).sim.obj == obj
+    assert load_checkpoint(tmp_path).sim.sim == obj
 
 
 def test_every_moved_module_and_name_resolves_today():

@@ -4,6 +4,16 @@ A result file is written to a temporary file in the same folder and renamed over
 (os.replace is atomic on POSIX), so a killed run never leaves a half-written file behind:
 :func:`atomic_write` for any writer (checkpoints, states, stills, figures), and
 write_json_atomic, write_parquet_atomic and write_text_atomic on top of it.
+
+Durable by default: the file is fsynced before the rename and its folder after it, so that a
+power loss or a node's crash right after a run never leaves a result (summary.json,
+frames.parquet, a checkpoint, the final state) renamed into place but empty. The per-frame
+outputs (states, stills, OBJ frames) pass durable=False: one fsync each per frame is not worth it.
+
+The temporary file is ``.<name>.<8 random characters>.tmp`` (tempfile.mkstemp), unique to its
+writer; it never outlives the write unless the process is killed outright (SIGKILL) during it.
+:func:`remove_stale_temp_files` removes such leftovers (cloth.runner.run does at a run's start
+and end, cloth.io.checkpoint.remove_checkpoint with the checkpoint).
 """
 
 from __future__ import annotations
@@ -15,6 +25,7 @@ import hashlib
 import json
 import os
 import platform
+import re
 import socket
 import subprocess
 import sys
@@ -127,38 +138,90 @@ def _umask() -> int:
 _UMASK = _umask()
 
 
+TEMP_SUFFIX = ".tmp"
+# what atomic_write's temporary files are called: "." + the target's name + "." + mkstemp's 8 characters + ".tmp"
+_TEMP_NAME = re.compile(r"\..+\.[a-z0-9_]{8}\.tmp")
+
+
+def fsync_dir(folder) -> None:
+    """Make a folder's entries (a rename into it, a file made or removed) durable."""
+    try:
+        fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    except OSError:  # a platform or file system without directory handles
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # some file systems refuse fsync of a directory (EINVAL): nothing more to do
+        pass
+    finally:
+        os.close(fd)
+
+
+def _fsync_file(path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
 @contextlib.contextmanager
-def atomic_write(path):
+def atomic_write(path, durable: bool = True):
     """Write a result file atomically: yields a temporary path beside `path` (same folder, made if
     absent, the usual permissions of a new file) for the caller to write; when the block ends
-    without an exception it is renamed over `path`. The temporary file never outlives the block.
+    without an exception it is renamed over `path`. The temporary file never outlives the block
+    (unless the process is killed outright: see remove_stale_temp_files). `durable`: fsync the
+    file before the rename and the folder after it (and a folder's parent when the folder was
+    made here), so that the file is on disk, whole, once the block ends.
 
         with atomic_write(out_dir / "table.csv") as tmp:
             tmp.write_text(text)
     """
     path = Path(path)
+    made = not path.parent.is_dir()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    if made and durable:
+        fsync_dir(path.parent.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMP_SUFFIX, dir=path.parent)
     os.close(fd)
     tmp = Path(tmp)
     try:
         os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; give result files the usual permissions
         yield tmp
+        if durable:
+            _fsync_file(tmp)
         os.replace(tmp, path)
+        if durable:
+            fsync_dir(path.parent)
     finally:
         tmp.unlink(missing_ok=True)
 
 
-def write_json_atomic(path, obj) -> None:
-    with atomic_write(path) as tmp:
+def remove_stale_temp_files(folder) -> list[Path]:
+    """Remove the temporary files that writers killed outright left in `folder` (atomic_write's
+    ``.<name>.<random>.tmp``; nothing else); returns the paths removed. Only for a folder that no
+    other process writes into at the time (a run's own folder at its start and end)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    removed = []
+    for p in folder.iterdir():
+        if _TEMP_NAME.fullmatch(p.name) and p.is_file():
+            p.unlink(missing_ok=True)
+            removed.append(p)
+    return removed
+
+
+def write_json_atomic(path, obj, durable: bool = True) -> None:
+    with atomic_write(path, durable) as tmp:
         tmp.write_text(json.dumps(obj, indent=2, default=str))
 
 
-def write_parquet_atomic(path, frame) -> None:
-    with atomic_write(path) as tmp:
+def write_parquet_atomic(path, frame, durable: bool = True) -> None:
+    with atomic_write(path, durable) as tmp:
         frame.to_parquet(tmp, index=False)
 
 
-def write_text_atomic(path, text: str) -> None:
-    with atomic_write(path) as tmp:
+def write_text_atomic(path, text: str, durable: bool = True) -> None:
+    with atomic_write(path, durable) as tmp:
         tmp.write_text(text)

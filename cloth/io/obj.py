@@ -242,7 +242,7 @@ def save_obj(path, mesh: Mesh) -> None:
         text = text[0]
     # no material library is written, so drop the references to one
     text = "\n".join(line for line in text.splitlines() if not line.startswith(("mtllib", "usemtl"))) + "\n"
-    write_text_atomic(path, text)
+    write_text_atomic(path, text, durable=False)  # a run's OBJ frames: no fsync each
 
 
 # ---- OBJ sequences (moving obstacles): positions and triangles only, the file's numbering ----
@@ -321,6 +321,6 @@ def write_obj_sequence(directory, vertices_per_frame, faces, stem: str = "frame"
     for k, x in enumerate(np.asarray(vertices_per_frame, dtype=np.float64)):
         text = "".join(f"v {a:.17g} {b:.17g} {c:.17g}\n" for a, b, c in x) + face_text
         path = directory / f"{stem}_{k:04d}.obj"
-        write_text_atomic(path, text)
+        write_text_atomic(path, text, durable=False)
         paths.append(path)
     return paths

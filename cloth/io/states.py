@@ -79,7 +79,7 @@ def save_state(path, mesh, frame: int, time: float, obstacles=(), handles=(), re
                       vert_node=np.asarray(mesh.vert_node, dtype=np.int32),
                       face_verts=np.asarray(mesh.face_verts, dtype=np.int32),
                       node_handle=node_handle, handle_local=handle_local)
-    with atomic_write(path) as tmp, open(tmp, "wb") as fh:
+    with atomic_write(path, durable=False) as tmp, open(tmp, "wb") as fh:  # one per frame: no fsync
         np.savez_compressed(fh, **arrays)
     return path
 

@@ -143,6 +143,6 @@ def render_still(path, camera, triangles, face_rgb, *, extra=(), title=None, dpi
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    with atomic_write(path) as tmp:
+    with atomic_write(path, durable=False) as tmp:  # one per frame or so: no fsync
         fig.savefig(tmp, dpi=dpi, format="png")
     return path
