@@ -1,5 +1,6 @@
 """The stability suite: hard cases that must run to the end with every value finite, the kinetic
-energy bounded, no intersection left and no face below the quality bound.
+energy bounded, no intersection left (no crossing face pair at the end where the scene declares
+self_collision) and no face below the quality bound.
 
     python -m experiments.stability [--scale paper|small] [--seeds 5] [--long] [--frames N]
                                     [--cases crushed_sheet karate_2x] [--out DIR]
@@ -169,6 +170,9 @@ def run_case(c: Case, frames: int, scale: str = "small", seed: int = 0) -> dict:
         kinetic_energy_bound_j=ke_bound,
         intersections_left_max=int(df.intersections_left.max()) if len(df) else -1,
         self_collisions_left_max=int(df.self_collisions_left.max()) if len(df) else -1,
+        # cloth-cloth crossings are a failure only where the scene declares self_collision: without
+        # it the cloth passes through itself by declaration (the solo dancer's skirt, karate's layers)
+        self_collision="self_collision" in sim.scene.effects,
         crossings_at_end=len(find_intersections(mesh.face_nodes, mesh.node_x)[0]),
         min_face_quality=float(df.min_face_quality.min()) if len(df) else np.nan,
         faces_max=int(df.faces.max()) if len(df) else 0,
@@ -180,7 +184,8 @@ def run_case(c: Case, frames: int, scale: str = "small", seed: int = 0) -> dict:
     )
     row["ok"] = bool(not row["error"] and row["frames_run"] == frames and row["finite"]
                      and row["max_kinetic_energy_j"] <= ke_bound and row["intersections_left_max"] == 0
-                     and row["self_collisions_left_max"] == 0 and row["crossings_at_end"] == 0
+                     and row["self_collisions_left_max"] == 0
+                     and (row["crossings_at_end"] == 0 or not row["self_collision"])
                      and row["min_face_quality"] >= QUALITY_MIN)
     return row
 

@@ -4,7 +4,8 @@ Every case (experiments/stability.py, CASES) runs at scale=small for its `frames
 and must: run to the end (no exception), keep every value finite, keep the kinetic energy
 below 1/2 M v^2 for the case's speed bound (a 1 m free fall, or the body's fastest parts),
 leave no intersection (untangling after remeshes and CCD within steps both report zero left,
-and no crossing face pair at the end), and keep every face above the quality bound
+and, where the scene declares self_collision, no crossing face pair at the end), and keep
+every face above the quality bound
 QUALITY_MIN. The cases:
 
 - one_frame_step: layered sheets, adaptive, one step per frame (dt = 0.04 s);
@@ -44,7 +45,7 @@ def test_case_stays_stable(case, seed):
     assert row["finite"], row
     assert row["max_kinetic_energy_j"] <= row["kinetic_energy_bound_j"], row
     assert row["intersections_left_max"] == 0 and row["self_collisions_left_max"] == 0, row
-    assert row["crossings_at_end"] == 0, row
+    assert row["crossings_at_end"] == 0 or not row["self_collision"], row  # declared: the cloth may cross itself
     assert row["min_face_quality"] >= QUALITY_MIN, row
     assert row["ok"]
 
