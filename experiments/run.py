@@ -33,7 +33,7 @@ from cloth.io.recorder import RerunRecorder
 from cloth.scenes.registry import CROWDS
 from cloth.simulation import SimulationDiverged
 from experiments.build import ConfigError, build_simulation, crowd_backend, crowd_size
-from experiments.crowd import run_characters, where
+from experiments.crowd import SHARE_ENV, run_characters, where
 
 # cloth.runner is imported where it is used: this module is the command line, and a mistyped
 # choice (`scene=nope`, checked by unknown_choice before Hydra composes) is answered before any
@@ -113,10 +113,15 @@ def threads_per_run(cores: int, runs_at_once: int) -> int:
 
 def share_cores(runs_at_once: int) -> int:
     """Give this process, and the processes it starts (a crowd's characters), their share of the
-    machine's cores; returns the thread count (recorded as numba_threads in manifest.json)."""
-    threads = threads_per_run(os.cpu_count() or 1, runs_at_once)
-    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
-    os.environ["NUMBA_NUM_THREADS"] = str(threads)  # inherited by worker processes started from here
+    machine's cores; returns the thread count (recorded as numba_threads in manifest.json).
+
+    The user's NUMBA_NUM_THREADS (what numba read at import: numba.config.NUMBA_NUM_THREADS) is a
+    ceiling, never rewritten: numba re-reads the environment at every compilation and refuses a
+    value other than the one its thread pool started with (a cold cache with NUMBA_NUM_THREADS=1
+    stopped a run). Worker processes read their share from SHARE_ENV (experiments.crowd.here)."""
+    threads = min(threads_per_run(os.cpu_count() or 1, runs_at_once), numba.config.NUMBA_NUM_THREADS)
+    numba.set_num_threads(threads)
+    os.environ[SHARE_ENV] = str(threads)  # inherited by worker processes started from here
     return numba.get_num_threads()
 
 
