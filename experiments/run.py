@@ -25,6 +25,7 @@ from pathlib import Path
 
 import hydra
 import numba
+import yaml
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
@@ -32,7 +33,7 @@ from cloth.io.manifest import environment_manifest, write_json_atomic, write_tex
 from cloth.io.recorder import RerunRecorder
 from cloth.scenes.registry import CROWDS
 from cloth.simulation import SimulationDiverged
-from experiments.build import ConfigError, build_simulation, crowd_backend, crowd_size
+from experiments.build import ConfigError, build, command_line_wins, crowd_backend, crowd_size, resolved_record
 from experiments.crowd import SHARE_ENV, run_characters, where
 
 # cloth.runner is imported where it is used: this module is the command line, and a mistyped
@@ -50,11 +51,26 @@ def make_recorder(cfg: DictConfig, out_dir: Path, root: str = "world", recording
                          recording_id=recording_id, log_camera=log_camera)
 
 
-def _write_inputs(cfg: DictConfig, out_dir: Path, recording_id: str | None = None) -> None:
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(out_dir / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
-    # the Rerun recording id: a resumed run continues the recording under the same id
-    write_json_atomic(out_dir / "manifest.json", environment_manifest(int(cfg.seed), {"recording_id": recording_id}))
+RESOLVED = "resolved.yaml"  # next to config.yaml: the values the run used (experiments.build.resolved_record)
+
+
+def write_resolved(built, out_dir: Path) -> None:
+    write_text_atomic(out_dir / RESOLVED, yaml.safe_dump(resolved_record(built), sort_keys=False))
+
+
+def _write_inputs(cfg: DictConfig, out_dir: Path, recording_id: str | None = None, built=None) -> None:
+    """config.yaml, resolved.yaml (of `built`) and manifest.json; an output folder that cannot be
+    written is a ConfigError naming hydra.run.dir."""
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(out_dir / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
+        if built is not None:
+            write_resolved(built, out_dir)
+        # the Rerun recording id: a resumed run continues the recording under the same id
+        write_json_atomic(out_dir / "manifest.json",
+                          environment_manifest(int(cfg.seed), {"recording_id": recording_id}))
+    except OSError as exc:
+        raise ConfigError(f"hydra.run.dir: cannot write the run folder {out_dir}: {exc.strerror or exc}") from None
 
 
 def checkpoint_every(cfg: DictConfig) -> int:
@@ -70,8 +86,11 @@ def run_character(config_yaml: str, character: int, out_dir: str, recording_id: 
     from cloth.runner import run  # noqa: PLC0415 - import cost (module note)
 
     cfg = OmegaConf.create(config_yaml)
-    sim, n_frames = build_simulation(cfg, character=character)
+    built = build(cfg, character=character)
+    sim, n_frames = built.sim, built.frames
     out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    write_resolved(built, out)
     recorder = make_recorder(cfg, out, root=f"world/dancer_{character:02d}", recording_id=recording_id,
                              log_camera=character == 0)
     try:
@@ -86,11 +105,11 @@ def run_crowd(cfg: DictConfig, out_dir: Path, dancers: int) -> dict:
     """Every character of a crowd on its backend (experiments.crowd), then the combined records."""
     from cloth.runner import combine_crowd  # noqa: PLC0415 - import cost (module note)
 
-    build_simulation(cfg, character=0)  # every config check, before any output
+    first = build(cfg, character=0)  # every config check, before any output
     checkpoint_every(cfg)
     backend = crowd_backend(cfg)
     recording_id = str(uuid.uuid4())
-    _write_inputs(cfg, out_dir, recording_id)
+    _write_inputs(cfg, out_dir, recording_id, first)  # character 0's values (each folder has its own)
     config_yaml = OmegaConf.to_yaml(cfg, resolve=True)
     dirs = [out_dir / f"dancer_{i:02d}" for i in range(dancers)]
     jobs = int(cfg.crowd_jobs)
@@ -132,14 +151,21 @@ def run_from_config(cfg: DictConfig, out_dir: Path) -> dict:
     dancers = crowd_size(cfg)
     if dancers is not None:
         return run_crowd(cfg, out_dir, dancers)
-    sim, n_frames = build_simulation(cfg)  # every config check happens here, before any output
+    built = build(cfg)  # every config check happens here, before any output
+    sim, n_frames = built.sim, built.frames
     every = checkpoint_every(cfg)
     recording_id = str(uuid.uuid4())
-    _write_inputs(cfg, out_dir, recording_id)
+    _write_inputs(cfg, out_dir, recording_id, built)
     return run(sim, n_frames, out_dir, recorder=make_recorder(cfg, out_dir, recording_id=recording_id),
                obj_every=int(cfg.output.obj_every),
                progress=bool(cfg.output.progress), stills_every=int(cfg.output.get("stills_every", 0)),
                states_every=int(cfg.output.get("states_every", 1)), checkpoint_every=every)
+
+
+def config_error(exc) -> None:
+    """Stop with exit code 2 and one line on stderr: `config error: KEY: message`."""
+    print("config error: " + " ".join(str(exc).split()), file=sys.stderr)
+    sys.exit(2)
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
@@ -152,13 +178,15 @@ def main(cfg: DictConfig) -> None:
     # runs at once on this machine: the launcher's parallel runs (joblib's n_jobs; a cluster
     # launcher's runs each get a machine of their own), times a crowd's parallel characters
     launcher_jobs = int(hydra_cfg.launcher.get("n_jobs", 1) or 1) if multirun else 1
-    crowd = max(1, int(cfg.get("crowd_jobs", 1) or 1)) if cfg.scene.name in CROWDS else 1
+    jobs = cfg.get("crowd_jobs", 1)  # checked by the build (crowd_size); a bad one counts as 1 here
+    crowd = jobs if cfg.scene.name in CROWDS and type(jobs) is int and jobs > 1 else 1
     share_cores(launcher_jobs * crowd)
     try:
+        # what the command line says wins over the scene's scale preset (recorded so in config.yaml)
+        cfg = command_line_wins(cfg, hydra_cfg.overrides.task)
         summary = run_from_config(cfg, out_dir)
     except ConfigError as exc:
-        print(f"config error: {exc}", file=sys.stderr)
-        sys.exit(2)
+        config_error(exc)
     except SimulationDiverged as exc:
         print(f"run stopped: {exc}\nframes written so far are in {out_dir}", file=sys.stderr)
         if multirun:
