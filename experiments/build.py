@@ -142,13 +142,15 @@ def _value_error_key(message: str, key: str, names) -> str:
 def _params(cls, values: dict, key: str):
     """cls(**values), every value checked (:func:`_check_fields`, then the class's own checks);
     ConfigError names the key."""
-    values = _check_fields(cls, dict(values), key)
+    given = dict(values)
+    checked = _check_fields(cls, given, key)
     try:
-        return cls(**values)
+        cls(**given)  # the class's own checks, its messages naming the values as given
     except TypeError as exc:  # a missing key
         raise ConfigError(f"{key}: {exc}") from None
     except ValueError as exc:
         raise ConfigError(_value_error_key(str(exc), key, {f.name for f in dataclasses.fields(cls)})) from None
+    return cls(**checked)
 
 
 def build_material(cfg: DictConfig):
@@ -251,7 +253,36 @@ def build_camera(cfg: DictConfig):
     except (ViewError, KeyError, TypeError, ValueError) as exc:
         if isinstance(exc, ConfigError):
             raise
-        raise ConfigError(f"camera: {exc}") from None
+        raise ConfigError(f"{_camera_key(cfg, exc)}: {exc}") from None
+
+
+def _camera_key(cfg, exc: Exception) -> str:
+    """The camera.* key a camera error is about: the one holding the value a conversion refused
+    (`could not convert string to float: 'abc'`), the key a KeyError names, or camera."""
+    m = re.search(r"could not convert string to float: '(.*)'|invalid literal for int\(\) with base 10: '(.*)'",
+                  str(exc))
+    wanted = (m.group(1) if m.group(1) is not None else m.group(2)) if m else None
+
+    def find(node, at):
+        if isinstance(node, dict):
+            for k, v in node.items():
+                if isinstance(exc, KeyError) and k == exc.args[0] and wanted is None:
+                    return f"{at}.{k}"
+                found = find(v, f"{at}.{k}")
+                if found:
+                    return found
+        elif isinstance(node, list):
+            for i, v in enumerate(node):
+                found = find(v, f"{at}[{i}]")
+                if found:
+                    return found
+        elif wanted is not None and isinstance(node, str) and node == wanted:
+            return at
+        return None
+
+    if isinstance(exc, KeyError) and wanted is None:
+        return f"camera.{exc.args[0]}" if exc.args else "camera"
+    return (find(_plain(cfg.get("camera")), "camera") if wanted is not None else None) or "camera"
 
 
 def build_buckling(mode_cfg: DictConfig, camera):
@@ -428,6 +459,8 @@ def build_simulation(cfg: DictConfig, character: int | None = None):
 def _scene_error(exc: Exception, name: str, params: dict) -> ConfigError:
     """A scene builder's SceneError or MeshError as a ConfigError naming the parameter it is about."""
     message = str(exc)
+    if re.search(r"unknown effect|effects \[", message):
+        return ConfigError(f"scene.effects: {message}")
     named = re.search(r"scene\.params\.(\w+)", message)
     if named:
         return ConfigError(f"scene.params.{named.group(1)}: {message}")
@@ -564,7 +597,7 @@ def _arcsim_frames(cfg: DictConfig) -> int:
     try:
         n = arcsim_end_frames(params.get("conf"), params.get("root"))
     except SceneError as exc:
-        raise ConfigError(f"scene: {exc}") from None
+        raise _scene_error(exc, "arcsim", params) from None
     _require(n is not None, "frames", f"the ARCSim conf {params.get('conf')} has no end: give frames=N")
     return n
 
@@ -577,7 +610,7 @@ def _arcsim_mode(cfg: DictConfig, params: dict, mode: str, scale_sizing: dict) -
     try:
         wants = arcsim_remesher_overrides(params.get("conf"), params.get("root"), float(factor))
     except SceneError as exc:
-        raise ConfigError(f"scene: {exc}") from None
+        raise _scene_error(exc, "arcsim", params) from None
     if mode in REMESHING_MODES:
         _require(wants["remeshing"], "mode", f"the ARCSim conf {params.get('conf')} disables remeshing: "
                                              "run it with mode=nonadaptive")

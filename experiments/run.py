@@ -233,8 +233,32 @@ def unknown_choice(overrides: list[str], conf_dir: Path = CONF_DIR) -> str | Non
     return None
 
 
+def unwritable_run_dir(argv: list[str], conf_dir: Path = CONF_DIR) -> str | None:
+    """The message for a run folder (hydra.run.dir; hydra.sweep.dir with --multirun) that cannot
+    be created or written, or None. Checked before Hydra composes: Hydra makes the folder before
+    the run starts and would stop with a traceback. The folder's fixed part (up to its first
+    ${...}) is checked: its nearest existing ancestor must be a writable folder."""
+    multirun = any(a in ("-m", "--multirun") for a in argv)
+    key = "hydra.sweep.dir" if multirun else "hydra.run.dir"
+    given = [a.split("=", 1)[1] for a in argv if re.fullmatch(rf"\+{{0,2}}{re.escape(key)}=.*", a)]
+    if given:
+        where = given[-1]
+    else:
+        conf = yaml.safe_load((conf_dir / "config.yaml").read_text()) or {}
+        where = ((conf.get("hydra") or {}).get("sweep" if multirun else "run") or {}).get("dir") or ""
+    fixed = Path(where.split("${", 1)[0] or ".").expanduser()
+    path = fixed if fixed.is_absolute() else Path.cwd() / fixed
+    while not path.exists() and path != path.parent:
+        path = path.parent
+    if not path.is_dir():
+        return f"{key}: cannot make the run folder {where}: {path} is not a folder"
+    if not os.access(path, os.W_OK | os.X_OK):
+        return f"{key}: cannot make the run folder {where}: {path} is not writable"
+    return None
+
+
 if __name__ == "__main__":
-    problem = unknown_choice(sys.argv[1:])
+    problem = unknown_choice(sys.argv[1:]) or unwritable_run_dir(sys.argv[1:])
     if problem:
         print(f"config error: {problem}", file=sys.stderr)
         sys.exit(2)
