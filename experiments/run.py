@@ -1,11 +1,15 @@
 """Run one simulation from the Hydra config: ``python -m experiments.run scene=flag frames=30``.
 
 Everything is built and checked from the config before any work starts; a config error stops
-with one message naming the key. The run folder (Hydra's output dir) receives the resolved
-config, manifest.json, frames.parquet, summary.json, recording.rrd and optional OBJ frames;
-every ``output.checkpoint_every`` frames the whole state goes to checkpoint/state.pkl, from which
-``python -m experiments.resume RUN_DIR`` continues a killed run (``python -m experiments.replay
-RUN_DIR`` re-runs a folder and checks that it reproduces).
+with one line ``config error: KEY: message`` and exit code 2, nothing written but Hydra's
+.hydra/. What the command line sets wins over the scene's scale preset
+(experiments.build.command_line_wins). The run folder (Hydra's output dir) receives the resolved
+config (config.yaml: what was asked), resolved.yaml (the values the run used, read from the built
+objects: experiments.build.resolved_record), manifest.json, frames.parquet, summary.json,
+recording.rrd and optional OBJ frames; every ``output.checkpoint_every`` frames the whole state
+goes to checkpoint/state.pkl, from which ``python -m experiments.resume RUN_DIR`` continues a
+killed run (``python -m experiments.replay RUN_DIR`` re-runs a folder and checks that it
+reproduces).
 
 A crowd scene (``scene=multiple_dancers``) runs each character as its own simulation in its own
 sub-folder (``dancer_00`` ...), `crowd_jobs` at a time on Ray or in local processes

@@ -253,3 +253,31 @@ def test_resolution_factor_is_recorded_as_the_resolution_that_ran():
 def test_build_refuses_in_process_too():
     with pytest.raises(ConfigError, match=r"^scene\.params\.resolution: must be an integer, got 2\.5$"):
         build(compose_config("+scene.params.resolution=2.5"))
+
+
+# ---- experiments.resume: why a checkpoint cannot be read ----------------------------------
+
+@pytest.mark.parametrize("state, says_killed, names", [
+    (None, True, "no checkpoint"),                     # missing: killed before its first checkpoint
+    (b"not a pickle", False, "cannot be read"),        # damaged
+    ("no_sim", False, "'sim'"),                        # of this format, without one of its parts
+])
+def test_resume_says_why_a_checkpoint_cannot_be_read(state, says_killed, names, tmp_path, capsys):
+    import pickle
+
+    from cloth.io.checkpoint import CHECKPOINT_FORMAT, checkpoint_path
+    from experiments.resume import main as resume_main
+
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(compose_config("scene=hanging_sheet", *QUIET),
+                                                           resolve=True))
+    path = checkpoint_path(run_dir)
+    if state is not None:
+        path.parent.mkdir(parents=True)
+        path.write_bytes(state if isinstance(state, bytes) else
+                         pickle.dumps({"format": CHECKPOINT_FORMAT, "rows": [], "frame": 0, "time": 0.0}))
+    assert resume_main([str(run_dir)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("cannot resume: ") and names in err[0], err
+    assert ("killed before its first checkpoint" in err[0]) == says_killed, err
