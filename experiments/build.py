@@ -506,6 +506,8 @@ def build(cfg: DictConfig, character: int | None = None) -> Built:
                  f"mode={mode} does not read it (its keys: {', '.join(sorted(MODE_KEYS[mode]))})")
     name = cfg.scene.name
     _require(name in SCENES, "scene.name", f"unknown scene {name!r}; known: {sorted(SCENES)}")
+    if name in CROWDS:  # the crowd's own keys first (scene.params.count: renamed, not unknown)
+        crowd_size(cfg)
     scales = cfg.scene.get("scales") or {}
     _require(cfg.scale in scales, "scale", f"scene {name!r} has no scale {cfg.scale!r}; available: {sorted(scales)}")
     reference_run = cfg.get("reference", False)
