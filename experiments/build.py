@@ -501,9 +501,12 @@ def build(cfg: DictConfig, character: int | None = None) -> Built:
     mode = cfg.mode.name
     _require(mode in IMPLEMENTED_MODES, "mode.name",
              f"mode {mode!r} is not implemented yet; implemented: {list(IMPLEMENTED_MODES)}")
+    # a key no mode reads is refused; one another mode reads is allowed: a study's preset sets
+    # mode.view for all of its points, the nonadaptive and adaptive ones too
+    every_mode = set().union(*MODE_KEYS.values())
     for key in cfg.mode:
-        _require(key in MODE_KEYS[mode], f"mode.{key}",
-                 f"mode={mode} does not read it (its keys: {', '.join(sorted(MODE_KEYS[mode]))})")
+        _require(key in every_mode, f"mode.{key}",
+                 f"no mode reads it (mode={mode} reads {', '.join(sorted(MODE_KEYS[mode]))})")
     name = cfg.scene.name
     _require(name in SCENES, "scene.name", f"unknown scene {name!r}; known: {sorted(SCENES)}")
     if name in CROWDS:  # the crowd's own keys first (scene.params.count: renamed, not unknown)

@@ -98,7 +98,7 @@ BAD = [
     (("mode=adaptive", "mode.remesh.aspect_min=abc"), "mode.remesh.aspect_min"),
     (("mode=adaptive", "+mode.remesh.max_split_rounds=-3"), "mode.remesh.max_split_rounds"),
     (("mode=adaptive", "mode.pop_filter.regularization=-1"), "mode.pop_filter.regularization"),
-    (("mode=adaptive", "+mode.view.nu_out=0.1"), "mode.view"),
+    (("mode=adaptive", "+mode.viewz.nu_out=0.1"), "mode.viewz"),
     ((*VIEW, "mode.view.margin=-1"), "mode.view.margin"),
     ((*VIEW, "mode.view.anticipation=maybe"), "mode.view.anticipation"),
     ((*VIEW, "mode.view.samples_per_frame=1.5"), "mode.view.samples_per_frame"),
