@@ -6,8 +6,14 @@ Hydra composes the config; this module turns it into solver objects and raises
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import importlib.util
 import inspect
+import math
+import re
+import types
+import typing
 
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
@@ -44,27 +50,118 @@ def _require(cond: bool, key: str, msg: str) -> None:
         raise ConfigError(f"{key}: {msg}")
 
 
-def build_material(cfg: DictConfig):
-    m = OmegaConf.to_container(cfg.material, resolve=True)
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _finite(v) -> bool:
+    return _is_number(v) and math.isfinite(v)
+
+
+def _int_at_least(v, low: int) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and v >= low
+
+
+def _check_int(v, key: str, low: int, what: str = "") -> int:
+    _require(_int_at_least(v, low), key, f"must be an integer >= {low}{what}, got {v!r}")
+    return int(v)
+
+
+def _check_positive(v, key: str, unit: str = "") -> float:
+    _require(_finite(v) and v > 0, key, f"must be a finite number > 0{unit}, got {v!r}")
+    return float(v)
+
+
+def _check_bool(v, key: str) -> bool:
+    _require(isinstance(v, bool), key, f"must be true or false, got {v!r}")
+    return v
+
+
+def _type_problem(value, hint) -> str | None:
+    """What is wrong with `value` for the annotation `hint` (None: nothing). float: a finite
+    number (an integer is one); int: an integer (not a bool, not 2.5); bool: true or false; str: a
+    string; X | None: null or an X. Other annotations (tuples, paths, objects) are not checked here."""
+    if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
+        args = typing.get_args(hint)
+        if value is None and type(None) in args:
+            return None
+        problems = [_type_problem(value, a) for a in args if a is not type(None)]
+        if any(p is None for p in problems):
+            return None
+        return problems[0] + (" or null" if type(None) in args else "")
+    if hint is float:
+        return None if _finite(value) else "must be a finite number"
+    if hint is int:
+        return None if isinstance(value, int) and not isinstance(value, bool) else "must be an integer"
+    if hint is bool:
+        return None if isinstance(value, bool) else "must be true or false"
+    if hint is str:
+        return None if isinstance(value, str) else "must be a string"
+    return None
+
+
+def _hints(target) -> dict:
+    """The annotations of a dataclass's fields or a function's parameters (resolved)."""
     try:
-        return Material(**m)
-    except TypeError as exc:
-        raise ConfigError(f"material: {exc}") from None
-    except MaterialError as exc:
-        raise ConfigError(f"material.{exc.key}: {exc}") from None
+        hints = typing.get_type_hints(target)
+    except (NameError, TypeError):  # an annotation that does not resolve: not checked
+        hints = {}
+    hints.pop("return", None)
+    return hints
+
+
+def _check_fields(target, values: dict, key: str, known=None) -> dict:
+    """`values` checked against the annotations of `target` (a dataclass: its fields, a function:
+    its parameters), every key known; returns them with the integers of float fields as floats.
+    ConfigError names `key`.<field>."""
+    hints = _hints(target)
+    if known is None:
+        known = ({f.name for f in dataclasses.fields(target)} if dataclasses.is_dataclass(target)
+                 else set(inspect.signature(target).parameters))
+    for name, value in values.items():
+        _require(name in known, f"{key}.{name}", f"unknown key; known: {', '.join(sorted(known))}")
+        problem = _type_problem(value, hints.get(name))
+        _require(problem is None, f"{key}.{name}", f"{problem}, got {value!r}")
+    return {k: float(v) if hints.get(k) is float and _is_number(v) else v for k, v in values.items()}
+
+
+def _value_error_key(message: str, key: str, names) -> str:
+    """`key: message` for a parameter class's ValueError, naming the field it starts with
+    (`size_min must be > 0` -> `mode.sizing.size_min: must be > 0`, `view.nu_out must be ...` ->
+    `mode.view.nu_out: must be ...`)."""
+    last = key.rsplit(".", 1)[-1] + "."
+    if message.startswith(last):  # a message that names its own group (view.l_min_px ...)
+        message = message[len(last):]
+    m = re.match(r"(\w+)", message)
+    if m and m.group(1) in names:
+        rest = message[m.end():].lstrip()
+        return f"{key}.{m.group(1)}: {rest if rest.startswith('must') else message}"
+    return f"{key}: {message}"
 
 
 def _params(cls, values: dict, key: str):
+    """cls(**values), every value checked (:func:`_check_fields`, then the class's own checks);
+    ConfigError names the key."""
+    given = dict(values)
+    checked = _check_fields(cls, given, key)
     try:
-        return cls(**values)
-    except TypeError as exc:  # an unknown key
+        cls(**given)  # the class's own checks, its messages naming the values as given
+    except TypeError as exc:  # a missing key
         raise ConfigError(f"{key}: {exc}") from None
     except ValueError as exc:
-        message = str(exc)
-        last = key.rsplit(".", 1)[-1] + "."
-        if message.startswith(last):  # a message that names its own group (view.l_min_px ...)
-            message = message[len(last):]
-        raise ConfigError(f"{key}.{message}") from None
+        raise ConfigError(_value_error_key(str(exc), key, {f.name for f in dataclasses.fields(cls)})) from None
+    return cls(**checked)
+
+
+def build_material(cfg: DictConfig):
+    """The Material of cfg.material, every value checked; ConfigError names material.<key>."""
+    m = _check_fields(Material, OmegaConf.to_container(cfg.material, resolve=True), "material")
+    try:
+        return Material(**m)
+    except TypeError as exc:  # a missing key
+        raise ConfigError(f"material: {exc}") from None
+    except MaterialError as exc:
+        raise ConfigError(f"material.{exc.key}: {exc}") from None
 
 
 def _plain(node):
@@ -75,10 +172,6 @@ def _plain(node):
 def _crowd_default(key: str):
     """multiple_dancers' own default of a parameter (for configs that do not set it)."""
     return inspect.signature(multiple_dancers).parameters[key].default
-
-
-def _int_at_least(v, low: int) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool) and v >= low
 
 
 def stage_camera_config(cam: dict, scene: dict) -> dict:
@@ -160,7 +253,36 @@ def build_camera(cfg: DictConfig):
     except (ViewError, KeyError, TypeError, ValueError) as exc:
         if isinstance(exc, ConfigError):
             raise
-        raise ConfigError(f"camera: {exc}") from None
+        raise ConfigError(f"{_camera_key(cfg, exc)}: {exc}") from None
+
+
+def _camera_key(cfg, exc: Exception) -> str:
+    """The camera.* key a camera error is about: the one holding the value a conversion refused
+    (`could not convert string to float: 'abc'`), the key a KeyError names, or camera."""
+    m = re.search(r"could not convert string to float: '(.*)'|invalid literal for int\(\) with base 10: '(.*)'",
+                  str(exc))
+    wanted = (m.group(1) if m.group(1) is not None else m.group(2)) if m else None
+
+    def find(node, at):
+        if isinstance(node, dict):
+            for k, v in node.items():
+                if isinstance(exc, KeyError) and k == exc.args[0] and wanted is None:
+                    return f"{at}.{k}"
+                found = find(v, f"{at}.{k}")
+                if found:
+                    return found
+        elif isinstance(node, list):
+            for i, v in enumerate(node):
+                found = find(v, f"{at}[{i}]")
+                if found:
+                    return found
+        elif wanted is not None and isinstance(node, str) and node == wanted:
+            return at
+        return None
+
+    if isinstance(exc, KeyError) and wanted is None:
+        return f"camera.{exc.args[0]}" if exc.args else "camera"
+    return (find(_plain(cfg.get("camera")), "camera") if wanted is not None else None) or "camera"
 
 
 def build_buckling(mode_cfg: DictConfig, camera):
@@ -181,8 +303,7 @@ def build_remesher(mode_cfg: DictConfig, sizing_overrides: dict, camera=None, fr
     sizing.update(sizing_overrides)
     remesh = OmegaConf.to_container(mode_cfg.remesh, resolve=True)
     pop = mode_cfg.get("pop_filter")
-    every = mode_cfg.get("every", 1)
-    _require(isinstance(every, int) and every >= 1, "mode.every", f"must be an integer >= 1, got {every!r}")
+    every = _check_int(mode_cfg.get("every", 1), "mode.every", 1, " (frames)")
     common = dict(
         sizing=_params(SizingParams, sizing, "mode.sizing"),
         params=_params(RemeshParams, remesh, "mode.remesh"),
@@ -238,89 +359,231 @@ def crowd_size(cfg: DictConfig) -> int | None:
     return dancers
 
 
+_OVERRIDE = re.compile(r"(\+\+|\+|~)?([A-Za-z_][\w.]*)(?:@[\w.]*)?(=.*)?")
+
+
+def override_keys(overrides) -> list[str]:
+    """The config keys that command-line overrides (Hydra's syntax: key=value, +key=value,
+    ++key=value) set, in order; deletions (~key) and group choices count as set too."""
+    keys = []
+    for arg in overrides or ():
+        m = _OVERRIDE.fullmatch(str(arg))
+        if m and m.group(2) not in keys:
+            keys.append(m.group(2))
+    return keys
+
+
+def command_line_wins(cfg: DictConfig, overrides) -> DictConfig:
+    """`cfg` with the scale preset (scene.scales.<scale>, and its reference preset) giving way to
+    what the command line (`overrides`, HydraConfig's overrides.task) sets:
+
+    * scene.params.K: the preset's K (and its reference's) is dropped, so the command line's value
+      is the scene's;
+    * mode.sizing.K: the preset's sizing.K becomes the command line's value (a preset's sizing and
+      an ARCSim conf's remeshing sizes are applied over mode.sizing: this way the command line
+      wins over both).
+
+    Both a key and the preset's own key on the command line (mode.sizing.size_min and
+    scene.scales.small.sizing.size_min) are refused, naming both. The config a run records
+    (config.yaml) is this one: a replay or resume builds what ran. A copy; `cfg` is unchanged."""
+    keys = override_keys(overrides)
+    scale = cfg.get("scale")
+    presets = cfg.scene.get("scales") if "scene" in cfg else None
+    if not isinstance(scale, str) or presets is None or scale not in presets:
+        return cfg  # build() names the bad scale
+    cfg = copy.deepcopy(cfg)
+    OmegaConf.set_struct(cfg, False)
+    preset = cfg.scene.scales[scale]
+    at = f"scene.scales.{scale}"
+    for key in keys:
+        parts = key.split(".")
+        if len(parts) == 3 and parts[:2] == ["scene", "params"]:
+            k = parts[2]
+            for where, node in ((at, preset), (f"{at}.reference", preset.get("reference"))):
+                if isinstance(node, DictConfig) and k in node:
+                    _require(f"{where}.{k}" not in keys, key,
+                             f"both {key} and {where}.{k} are set on the command line: set one")
+                    del node[k]
+        elif len(parts) == 3 and parts[:2] == ["mode", "sizing"] and "sizing" in cfg.mode:
+            k = parts[2]
+            _require(f"{at}.sizing.{k}" not in keys, key,
+                     f"both {key} and {at}.sizing.{k} are set on the command line: set one")
+            if k in cfg.mode.sizing:
+                if not isinstance(preset.get("sizing"), DictConfig):
+                    preset.sizing = {}
+                preset.sizing[k] = cfg.mode.sizing[k]
+    return cfg
+
+
+# The keys each mode reads (conf/mode/); any other is refused, not ignored.
+MODE_KEYS = {"nonadaptive": {"name", "buckling"},
+             "adaptive": {"name", "every", "sizing", "remesh", "pop_filter", "buckling"},
+             "viewdep": {"name", "every", "sizing", "remesh", "pop_filter", "buckling", "view"}}
+# output.* (conf/output/default.yaml): what each is, checked before any run.
+OUTPUT_INTS = ("obj_every", "stills_every", "states_every", "checkpoint_every")  # frames, 0: never
+OUTPUT_BOOLS = ("rerun", "progress")
+
+
+def check_output(cfg: DictConfig) -> None:
+    """Every output.* key (conf/output/default.yaml), ConfigError naming a bad one."""
+    out = _plain(cfg.get("output")) or {}
+    _require(isinstance(out, dict), "output", f"must be a mapping, got {out!r}")
+    known = set(OUTPUT_INTS) | set(OUTPUT_BOOLS)
+    for key, value in out.items():
+        _require(key in known, f"output.{key}", f"unknown key; known: {', '.join(sorted(known))}")
+        if key in OUTPUT_BOOLS:
+            _check_bool(value, f"output.{key}")
+        else:
+            _check_int(value, f"output.{key}", 0, " (frames; 0: never)")
+
+
+@dataclasses.dataclass
+class Built:
+    """What a config became: the simulation, the frames it runs, and the keyword parameters its
+    scene was built with (after the scale preset, the reference preset and resolution_factor)."""
+
+    sim: Simulation
+    frames: int
+    scene_params: dict
+
+
 def build_simulation(cfg: DictConfig, character: int | None = None):
     """Return (Simulation, n_frames); raises ConfigError naming the key of a bad value.
 
     For a crowd scene (cloth.scenes.registry.CROWDS) this is the simulation of one `character` (0 if None).
     """
+    built = build(cfg, character)
+    return built.sim, built.frames
+
+
+def _scene_error(exc: Exception, name: str, params: dict) -> ConfigError:
+    """A scene builder's SceneError or MeshError as a ConfigError naming the parameter it is about."""
+    message = str(exc)
+    if re.search(r"unknown effect|effects \[", message):
+        return ConfigError(f"scene.effects: {message}")
+    named = re.search(r"scene\.params\.(\w+)", message)
+    if named:
+        return ConfigError(f"scene.params.{named.group(1)}: {message}")
+    m = re.match(r"scene '[^']*': (\w+) ", message)
+    if m and m.group(1) in params:
+        return ConfigError(f"scene.params.{m.group(1)}: {message}")
+    if name == "arcsim":  # the ARCSim conf or a file it names
+        return ConfigError(f"scene.params.conf: {message}")
+    return ConfigError(f"scene.params: {message}")
+
+
+def _scene_builder_check(name: str, params: dict) -> dict:
+    """The scene's parameters checked against its builder's annotations (a crowd: with the solo
+    dancer's, which it passes on)."""
+    builder = SCENES[name]
+    hints = _hints(builder)
+    known = set(inspect.signature(builder).parameters) - {"material", "dancer"}
+    if name in CROWDS:
+        solo = SCENES["solo_dancer"]
+        hints = {**_hints(solo), **hints}
+        known |= set(inspect.signature(solo).parameters) - {"material", "position", "phase", "heading"}
+
+    def target():  # the merged annotations, for _check_fields
+        pass
+    target.__annotations__ = hints
+    return _check_fields(target, params, "scene.params", known=known)
+
+
+def build(cfg: DictConfig, character: int | None = None) -> Built:
+    """Every config value checked, then the objects built (:class:`Built`); ConfigError names
+    the key of the first bad value. Nothing is simulated or written."""
     n_frames = run_frames(cfg)
-    _require(isinstance(cfg.get("seed"), int), "seed", f"must be an integer, got {cfg.get('seed')!r}")
-    _require(cfg.get("max_speed", 0) > 0, "max_speed", f"must be > 0 m/s, got {cfg.get('max_speed')!r}")
+    seed = cfg.get("seed")
+    _check_int(seed, "seed", 0, " (it seeds the scene's random choices)")
+    max_speed = _check_positive(cfg.get("max_speed", 0), "max_speed",
+                                " m/s (a faster node stops the run: the divergence check)")
+    check_output(cfg)
     mode = cfg.mode.name
     _require(mode in IMPLEMENTED_MODES, "mode.name",
              f"mode {mode!r} is not implemented yet; implemented: {list(IMPLEMENTED_MODES)}")
+    # a key no mode reads is refused; one another mode reads is allowed: a study's preset sets
+    # mode.view for all of its points, the nonadaptive and adaptive ones too
+    every_mode = set().union(*MODE_KEYS.values())
+    for key in cfg.mode:
+        _require(key in every_mode, f"mode.{key}",
+                 f"no mode reads it (mode={mode} reads {', '.join(sorted(MODE_KEYS[mode]))})")
     name = cfg.scene.name
     _require(name in SCENES, "scene.name", f"unknown scene {name!r}; known: {sorted(SCENES)}")
+    if name in CROWDS:  # the crowd's own keys first (scene.params.count: renamed, not unknown)
+        crowd_size(cfg)
     scales = cfg.scene.get("scales") or {}
     _require(cfg.scale in scales, "scale", f"scene {name!r} has no scale {cfg.scale!r}; available: {sorted(scales)}")
+    reference_run = cfg.get("reference", False)
+    _check_bool(reference_run, "reference")
     params = dict(OmegaConf.to_container(cfg.scene.params, resolve=True))
     params.update(OmegaConf.to_container(scales[cfg.scale], resolve=True))
     reference = params.pop("reference", None)
-    if cfg.get("reference", False):  # the fine nonadaptive run that accuracy is measured against
+    if reference_run:  # the fine nonadaptive run that accuracy is measured against
         _require(mode == "nonadaptive", "reference",
                  f"a reference run is nonadaptive (mode=nonadaptive), got mode={mode}")
         _require(isinstance(reference, dict), "reference",
                  f"scene {name!r} has no reference preset at scale {cfg.scale!r} (scene.scales.{cfg.scale}.reference)")
         params.update(reference)
     sizing_overrides = params.pop("sizing", None) or {}
+    _require(isinstance(sizing_overrides, dict), f"scene.scales.{cfg.scale}.sizing",
+             f"must be a mapping of mode.sizing keys, got {sizing_overrides!r}")
     pop_filter = True
     if name == "arcsim":
         sizing_overrides, pop_filter = _arcsim_mode(cfg, params, mode, sizing_overrides)
     factor = cfg.get("resolution_factor", 1.0)
-    _require(isinstance(factor, (int, float)) and not isinstance(factor, bool) and factor > 0, "resolution_factor",
-             f"must be a number > 0, got {factor!r}")
+    _check_positive(factor, "resolution_factor")
     if factor != 1.0:
-        _require(mode == "nonadaptive" and not cfg.get("reference", False), "resolution_factor",
-                 f"scales the fixed mesh of the preset; mode={mode}{' (reference)' if cfg.get('reference') else ''} "
+        _require(mode == "nonadaptive" and not reference_run, "resolution_factor",
+                 f"scales the fixed mesh of the preset; mode={mode}{' (reference)' if reference_run else ''} "
                  f"has none to scale")
         _require("resolution" in params, "resolution_factor", f"scene {name!r} has no resolution to scale")
+        _require(_is_number(params["resolution"]), "scene.params.resolution",
+                 f"must be an integer, got {params['resolution']!r}")
         params["resolution"] = max(int(round(params["resolution"] * factor)), 1)
+    checked = _scene_builder_check(name, params)  # the values as given are named in the messages
     for key in ("frame_time", "steps_per_frame", "resolution"):
         if key in params:
             v = params[key]
-            _require(isinstance(v, (int, float)) and v > 0, f"scene.params.{key}", f"must be > 0, got {v!r}")
+            _require(_finite(v) and v > 0, f"scene.params.{key}", f"must be > 0, got {v!r}")
     _require(isinstance(params.get("steps_per_frame", 1), int), "scene.params.steps_per_frame",
              f"must be an integer, got {params.get('steps_per_frame')!r}")
-    params["effects"] = tuple(cfg.scene.effects)
+    params = checked
+    effects = cfg.scene.get("effects")
+    _require(effects is not None and not isinstance(effects, str)
+             and all(isinstance(e, str) for e in effects), "scene.effects",
+             f"must be a list of effect names, got {_plain(effects)!r}")
+    params["effects"] = tuple(effects)
     member = cfg.get("reference_member", 0)
-    _require(isinstance(member, int) and not isinstance(member, bool) and member >= 0, "reference_member",
-             f"must be an integer >= 0, got {member!r}")
-    _require(member == 0 or cfg.get("reference", False), "reference_member",
+    _check_int(member, "reference_member", 0)
+    _require(member == 0 or reference_run, "reference_member",
              "members of a reference ensemble are reference runs (+point=member/K sets both)")
     # member K of the ensemble of seed s: the scene's seed s + MEMBER_SEED_STRIDE K (distinct from
     # every run's own seed below the stride)
-    params["seed"] = int(cfg.seed) + MEMBER_SEED_STRIDE * int(member)
+    params["seed"] = int(seed) + MEMBER_SEED_STRIDE * int(member)
     if name in CROWDS:
         crowd_size(cfg)
         params["character"] = int(character or 0)
     material = build_material(cfg)
-    try:
-        solver = SolverOptions(method=cfg.solver.method, tolerance=float(cfg.solver.tolerance),
-                               max_iterations=int(cfg.solver.max_iterations))
-    except ValueError as exc:
-        raise ConfigError(str(exc)) from None
-    _require(int(cfg.output.obj_every) >= 0, "output.obj_every", f"must be >= 0, got {cfg.output.obj_every}")
+    solver = _params(SolverOptions, OmegaConf.to_container(cfg.solver, resolve=True), "solver")
     camera = build_camera(cfg)
-    stills = cfg.output.get("stills_every", 0)
-    _require(isinstance(stills, int) and stills >= 0, "output.stills_every", f"must be an integer >= 0, got {stills!r}")
-    states = cfg.output.get("states_every", 1)
-    _require(isinstance(states, int) and states >= 0, "output.states_every", f"must be an integer >= 0, got {states!r}")
-    _require(stills == 0 or camera is not None, "output.stills_every",
+    _require(cfg.output.get("stills_every", 0) == 0 or camera is not None, "output.stills_every",
              "stills are drawn from the camera: choose one with camera=<name> (conf/camera/)")
     buckling = build_buckling(cfg.mode, camera)
+    scene_view = cfg.scene.get("view")
+    scene_view = OmegaConf.to_container(scene_view, resolve=True) if scene_view is not None else None
+    if mode in REMESHING_MODES:  # its parameters checked before the scene is built (the slow part)
+        build_remesher(cfg.mode, sizing_overrides, camera, float(params.get("frame_time", 0.04)), scene_view)
     try:
         scene = build_scene(name, material, **params)
     except (SceneError, MeshError) as exc:
-        raise ConfigError(f"scene: {exc}") from None
+        raise _scene_error(exc, name, params) from None
     scene.camera = camera
-    scene_view = cfg.scene.get("view")
-    scene_view = OmegaConf.to_container(scene_view, resolve=True) if scene_view is not None else None
     remesher = (build_remesher(cfg.mode, sizing_overrides, camera, scene.frame_time, scene_view)
                 if mode in REMESHING_MODES else None)
     if remesher is not None and not pop_filter:
         remesher.pop = None
-    return (Simulation(scene, solver=solver, remesher=remesher, max_speed=float(cfg.max_speed), buckling=buckling),
-            int(n_frames))
+    sim = Simulation(scene, solver=solver, remesher=remesher, max_speed=max_speed, buckling=buckling)
+    return Built(sim=sim, frames=int(n_frames), scene_params=params)
 
 
 def run_frames(cfg: DictConfig) -> int:
@@ -339,7 +602,7 @@ def _arcsim_frames(cfg: DictConfig) -> int:
     try:
         n = arcsim_end_frames(params.get("conf"), params.get("root"))
     except SceneError as exc:
-        raise ConfigError(f"scene: {exc}") from None
+        raise _scene_error(exc, "arcsim", params) from None
     _require(n is not None, "frames", f"the ARCSim conf {params.get('conf')} has no end: give frames=N")
     return n
 
@@ -348,15 +611,63 @@ def _arcsim_mode(cfg: DictConfig, params: dict, mode: str, scale_sizing: dict) -
     """An ARCSim scene's part in the mode: the conf's remeshing sizes (x the scale's size_factor)
     as sizing overrides, its fixed mesh for mode=nonadaptive, and whether it keeps the pop filter."""
     factor = params.get("size_factor", 1.0)
-    _require(isinstance(factor, (int, float)) and factor > 0, "scene.params.size_factor",
-             f"must be > 0, got {factor!r}")
+    _check_positive(factor, "scene.params.size_factor")
     try:
         wants = arcsim_remesher_overrides(params.get("conf"), params.get("root"), float(factor))
     except SceneError as exc:
-        raise ConfigError(f"scene: {exc}") from None
+        raise _scene_error(exc, "arcsim", params) from None
     if mode in REMESHING_MODES:
         _require(wants["remeshing"], "mode", f"the ARCSim conf {params.get('conf')} disables remeshing: "
                                              "run it with mode=nonadaptive")
     else:
         params["mode_mesh"] = "uniform"
     return {**wants["sizing"], **scale_sizing}, wants["pop_filter"]
+
+
+def _record_value(v):
+    """A built value as plain YAML data (dataclasses as mappings, tuples and arrays as lists)."""
+    if dataclasses.is_dataclass(v) and not isinstance(v, type):
+        return {f.name: _record_value(getattr(v, f.name)) for f in dataclasses.fields(v)}
+    if isinstance(v, dict):
+        return {str(k): _record_value(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple, set, frozenset)):
+        items = sorted(v) if isinstance(v, (set, frozenset)) else v
+        return [_record_value(x) for x in items]
+    if isinstance(v, np.ndarray):
+        return _record_value(v.tolist())
+    if isinstance(v, np.generic):
+        return v.item()
+    if v is None or isinstance(v, (bool, int, float, str)):
+        return v
+    return str(v)
+
+
+def resolved_record(built: Built) -> dict:
+    """The values a run uses, read from the built objects (what a run folder's resolved.yaml
+    holds): the frames, the scene (its builder's parameters and what the scene became), the
+    material, the solver's options, the remesher's (sizing, remesh, pop filter, view), the
+    buckling compensation's and max_speed. config.yaml says what was asked; this, what ran (an
+    ARCSim conf's remeshing sizes, a scale preset, resolution_factor are applied here)."""
+    sim = built.sim
+    scene, remesher = sim.scene, sim.remesher
+    remesh = None
+    if remesher is not None:
+        remesh = {"kind": type(remesher).__name__, "every": remesher.every,
+                  "sizing": _record_value(remesher.sizing), "remesh": _record_value(remesher.params),
+                  "pop_filter": _record_value(remesher.pop)}
+        if hasattr(remesher, "view"):
+            remesh["view"] = _record_value(remesher.view)
+            remesh["frame_time"] = float(remesher.frame_time)
+    return {
+        "frames": int(built.frames),
+        "max_speed": float(sim.max_speed),
+        "scene": {"name": scene.name, "params": _record_value(built.scene_params),
+                  "frame_time": float(scene.frame_time), "steps_per_frame": int(scene.steps_per_frame),
+                  "effects": _record_value(scene.effects), "thickness": float(scene.thickness),
+                  "friction": float(scene.friction), "faces": int(sim.mesh.n_faces),
+                  "camera": None if scene.camera is None else type(scene.camera).__name__},
+        "material": {"kind": type(scene.material).__name__, **_record_value(scene.material)},
+        "solver": _record_value(sim.solver),
+        "remesher": remesh,
+        "buckling": _record_value(sim.buckling),
+    }

@@ -12,7 +12,8 @@ writes its own run folder (experiments.run.run_character, experiments.resume.res
   started for the crowd and shut down after it. In a process that is already connected to Ray (a
   run that is itself a Ray task: cluster=ray), the characters go to that Ray.
 * ``processes``: `crowd_jobs` local processes (joblib's loky), each with the thread count that
-  experiments.run.share_cores gave this process (NUMBA_NUM_THREADS, inherited).
+  experiments.run.share_cores gave this process (SHARE_ENV, inherited; the user's
+  NUMBA_NUM_THREADS is the ceiling).
 
 With `crowd_jobs` 1 (and no RAY_ADDRESS for ray) the characters run one after the other in this
 process, as the only run on the machine (with its threads: experiments.run.share_cores); so does
@@ -33,6 +34,10 @@ from joblib import Parallel, delayed
 
 # The thread environment of a character on Ray: one thread each (every library that reads one).
 THREAD_ENV = {"MKL_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
+# A local worker process's numba thread count (experiments.run.share_cores sets it, `here` reads
+# it). Not NUMBA_NUM_THREADS: numba re-reads that at every compilation and refuses a change once
+# its threads run, and the user's own value is a ceiling, not ours to rewrite.
+SHARE_ENV = "CLOTH_NUMBA_THREADS"
 
 
 def worker_info() -> dict:
@@ -42,7 +47,11 @@ def worker_info() -> dict:
 
 
 def here(task, *args) -> dict:
-    """A character in this process or a local worker process, with the threads it has."""
+    """A character in this process or a local worker process, with its share of the cores
+    (SHARE_ENV, set by experiments.run.share_cores; at most numba's NUMBA_NUM_THREADS)."""
+    share = os.environ.get(SHARE_ENV, "")
+    if share.isdigit() and int(share) >= 1:
+        numba.set_num_threads(min(int(share), numba.config.NUMBA_NUM_THREADS))
     task(*args)
     return worker_info()
 

@@ -201,10 +201,14 @@ def resume(run_dir, progress: bool | None = None) -> dict:
         return resume_crowd(cfg, run_dir, dancers)
     try:
         ckpt = load_checkpoint(run_dir)
-    except CheckpointError as exc:  # the cause below only when there is no checkpoint file
-        raise ResumeError(f"{exc}" if checkpoint_path(run_dir).is_file() else (
-            f"{exc}: the run was killed before its first checkpoint or ran with output.checkpoint_every=0; "
-            f"run it again")) from None
+    except CheckpointError as exc:
+        if checkpoint_path(run_dir).is_file():  # there is one, but it is bad: the message says how
+            raise ResumeError(str(exc)) from None
+        raise ResumeError(f"{exc}: the run was killed before its first checkpoint or ran with "
+                          f"output.checkpoint_every=0; run it again") from None
+    except KeyError as exc:  # a checkpoint of this format without one of its parts
+        raise ResumeError(f"{checkpoint_path(run_dir)}: the checkpoint has no {exc.args[0]!r} (damaged, or "
+                          f"written by other code); it cannot be resumed: run it again") from None
     warning = _code_warning(run_dir, ckpt.code)
     if warning:
         print(warning, file=sys.stderr)

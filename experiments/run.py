@@ -1,11 +1,15 @@
 """Run one simulation from the Hydra config: ``python -m experiments.run scene=flag frames=30``.
 
 Everything is built and checked from the config before any work starts; a config error stops
-with one message naming the key. The run folder (Hydra's output dir) receives the resolved
-config, manifest.json, frames.parquet, summary.json, recording.rrd and optional OBJ frames;
-every ``output.checkpoint_every`` frames the whole state goes to checkpoint/state.pkl, from which
-``python -m experiments.resume RUN_DIR`` continues a killed run (``python -m experiments.replay
-RUN_DIR`` re-runs a folder and checks that it reproduces).
+with one line ``config error: KEY: message`` and exit code 2, nothing written but Hydra's
+.hydra/. What the command line sets wins over the scene's scale preset
+(experiments.build.command_line_wins). The run folder (Hydra's output dir) receives the resolved
+config (config.yaml: what was asked), resolved.yaml (the values the run used, read from the built
+objects: experiments.build.resolved_record), manifest.json, frames.parquet, summary.json,
+recording.rrd and optional OBJ frames; every ``output.checkpoint_every`` frames the whole state
+goes to checkpoint/state.pkl, from which ``python -m experiments.resume RUN_DIR`` continues a
+killed run (``python -m experiments.replay RUN_DIR`` re-runs a folder and checks that it
+reproduces).
 
 A crowd scene (``scene=multiple_dancers``) runs each character as its own simulation in its own
 sub-folder (``dancer_00`` ...), `crowd_jobs` at a time on Ray or in local processes
@@ -19,22 +23,24 @@ from __future__ import annotations
 import json
 import os
 import re
+import signal
 import sys
 import uuid
 from pathlib import Path
 
 import hydra
 import numba
+import yaml
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 from cloth.io.manifest import environment_manifest, write_json_atomic, write_text_atomic
 from cloth.io.recorder import RerunRecorder
 from cloth.scenes.registry import CROWDS
-from cloth.signals import sigterm_interrupts
+from cloth.signals import Terminated, sigterm_interrupts
 from cloth.simulation import SimulationDiverged
-from experiments.build import ConfigError, build_simulation, crowd_backend, crowd_size
-from experiments.crowd import run_characters, where
+from experiments.build import ConfigError, build, command_line_wins, crowd_backend, crowd_size, resolved_record
+from experiments.crowd import SHARE_ENV, run_characters, where
 
 # cloth.runner is imported where it is used: this module is the command line, and a mistyped
 # choice (`scene=nope`, checked by unknown_choice before Hydra composes) is answered before any
@@ -51,11 +57,26 @@ def make_recorder(cfg: DictConfig, out_dir: Path, root: str = "world", recording
                          recording_id=recording_id, log_camera=log_camera)
 
 
-def _write_inputs(cfg: DictConfig, out_dir: Path, recording_id: str | None = None) -> None:
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(out_dir / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
-    # the Rerun recording id: a resumed run continues the recording under the same id
-    write_json_atomic(out_dir / "manifest.json", environment_manifest(int(cfg.seed), {"recording_id": recording_id}))
+RESOLVED = "resolved.yaml"  # next to config.yaml: the values the run used (experiments.build.resolved_record)
+
+
+def write_resolved(built, out_dir: Path) -> None:
+    write_text_atomic(out_dir / RESOLVED, yaml.safe_dump(resolved_record(built), sort_keys=False))
+
+
+def _write_inputs(cfg: DictConfig, out_dir: Path, recording_id: str | None = None, built=None) -> None:
+    """config.yaml, resolved.yaml (of `built`) and manifest.json; an output folder that cannot be
+    written is a ConfigError naming hydra.run.dir."""
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(out_dir / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
+        if built is not None:
+            write_resolved(built, out_dir)
+        # the Rerun recording id: a resumed run continues the recording under the same id
+        write_json_atomic(out_dir / "manifest.json",
+                          environment_manifest(int(cfg.seed), {"recording_id": recording_id}))
+    except OSError as exc:
+        raise ConfigError(f"hydra.run.dir: cannot write the run folder {out_dir}: {exc.strerror or exc}") from None
 
 
 def checkpoint_every(cfg: DictConfig) -> int:
@@ -71,8 +92,11 @@ def run_character(config_yaml: str, character: int, out_dir: str, recording_id: 
     from cloth.runner import run  # noqa: PLC0415 - import cost (module note)
 
     cfg = OmegaConf.create(config_yaml)
-    sim, n_frames = build_simulation(cfg, character=character)
+    built = build(cfg, character=character)
+    sim, n_frames = built.sim, built.frames
     out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    write_resolved(built, out)
     recorder = make_recorder(cfg, out, root=f"world/dancer_{character:02d}", recording_id=recording_id,
                              log_camera=character == 0)
     try:
@@ -87,11 +111,11 @@ def run_crowd(cfg: DictConfig, out_dir: Path, dancers: int) -> dict:
     """Every character of a crowd on its backend (experiments.crowd), then the combined records."""
     from cloth.runner import combine_crowd  # noqa: PLC0415 - import cost (module note)
 
-    build_simulation(cfg, character=0)  # every config check, before any output
+    first = build(cfg, character=0)  # every config check, before any output
     checkpoint_every(cfg)
     backend = crowd_backend(cfg)
     recording_id = str(uuid.uuid4())
-    _write_inputs(cfg, out_dir, recording_id)
+    _write_inputs(cfg, out_dir, recording_id, first)  # character 0's values (each folder has its own)
     config_yaml = OmegaConf.to_yaml(cfg, resolve=True)
     dirs = [out_dir / f"dancer_{i:02d}" for i in range(dancers)]
     jobs = int(cfg.crowd_jobs)
@@ -114,10 +138,15 @@ def threads_per_run(cores: int, runs_at_once: int) -> int:
 
 def share_cores(runs_at_once: int) -> int:
     """Give this process, and the processes it starts (a crowd's characters), their share of the
-    machine's cores; returns the thread count (recorded as numba_threads in manifest.json)."""
-    threads = threads_per_run(os.cpu_count() or 1, runs_at_once)
-    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
-    os.environ["NUMBA_NUM_THREADS"] = str(threads)  # inherited by worker processes started from here
+    machine's cores; returns the thread count (recorded as numba_threads in manifest.json).
+
+    The user's NUMBA_NUM_THREADS (what numba read at import: numba.config.NUMBA_NUM_THREADS) is a
+    ceiling, never rewritten: numba re-reads the environment at every compilation and refuses a
+    value other than the one its thread pool started with (a cold cache with NUMBA_NUM_THREADS=1
+    stopped a run). Worker processes read their share from SHARE_ENV (experiments.crowd.here)."""
+    threads = min(threads_per_run(os.cpu_count() or 1, runs_at_once), numba.config.NUMBA_NUM_THREADS)
+    numba.set_num_threads(threads)
+    os.environ[SHARE_ENV] = str(threads)  # inherited by worker processes started from here
     return numba.get_num_threads()
 
 
@@ -128,14 +157,21 @@ def run_from_config(cfg: DictConfig, out_dir: Path) -> dict:
     dancers = crowd_size(cfg)
     if dancers is not None:
         return run_crowd(cfg, out_dir, dancers)
-    sim, n_frames = build_simulation(cfg)  # every config check happens here, before any output
+    built = build(cfg)  # every config check happens here, before any output
+    sim, n_frames = built.sim, built.frames
     every = checkpoint_every(cfg)
     recording_id = str(uuid.uuid4())
-    _write_inputs(cfg, out_dir, recording_id)
+    _write_inputs(cfg, out_dir, recording_id, built)
     return run(sim, n_frames, out_dir, recorder=make_recorder(cfg, out_dir, recording_id=recording_id),
                obj_every=int(cfg.output.obj_every),
                progress=bool(cfg.output.progress), stills_every=int(cfg.output.get("stills_every", 0)),
                states_every=int(cfg.output.get("states_every", 1)), checkpoint_every=every)
+
+
+def config_error(exc) -> None:
+    """Stop with exit code 2 and one line on stderr: `config error: KEY: message`."""
+    print("config error: " + " ".join(str(exc).split()), file=sys.stderr)
+    sys.exit(2)
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
@@ -148,14 +184,23 @@ def main(cfg: DictConfig) -> None:
     # runs at once on this machine: the launcher's parallel runs (joblib's n_jobs; a cluster
     # launcher's runs each get a machine of their own), times a crowd's parallel characters
     launcher_jobs = int(hydra_cfg.launcher.get("n_jobs", 1) or 1) if multirun else 1
-    crowd = max(1, int(cfg.get("crowd_jobs", 1) or 1)) if cfg.scene.name in CROWDS else 1
+    jobs = cfg.get("crowd_jobs", 1)  # checked by the build (crowd_size); a bad one counts as 1 here
+    crowd = jobs if cfg.scene.name in CROWDS and type(jobs) is int and jobs > 1 else 1
     share_cores(launcher_jobs * crowd)
     try:
+        # what the command line says wins over the scene's scale preset (recorded so in config.yaml)
+        cfg = command_line_wins(cfg, hydra_cfg.overrides.task)
         with sigterm_interrupts():  # a scheduler's SIGTERM stops the run as Ctrl-C does, its records written
             summary = run_from_config(cfg, out_dir)
     except ConfigError as exc:
-        print(f"config error: {exc}", file=sys.stderr)
-        sys.exit(2)
+        config_error(exc)
+    except KeyboardInterrupt as exc:  # Ctrl-C or a scheduler's SIGTERM: the records are written
+        if multirun:  # the whole sweep stops
+            raise
+        signum = exc.signum if isinstance(exc, Terminated) else signal.SIGINT
+        print(f"interrupted ({signal.Signals(signum).name}): the frames so far are in {out_dir}; "
+              f"continue with: python -m experiments.resume {out_dir}", file=sys.stderr)
+        sys.exit(128 + signum)
     except SimulationDiverged as exc:
         print(f"run stopped: {exc}\nframes written so far are in {out_dir}", file=sys.stderr)
         if multirun:
@@ -202,8 +247,32 @@ def unknown_choice(overrides: list[str], conf_dir: Path = CONF_DIR) -> str | Non
     return None
 
 
+def unwritable_run_dir(argv: list[str], conf_dir: Path = CONF_DIR) -> str | None:
+    """The message for a run folder (hydra.run.dir; hydra.sweep.dir with --multirun) that cannot
+    be created or written, or None. Checked before Hydra composes: Hydra makes the folder before
+    the run starts and would stop with a traceback. The folder's fixed part (up to its first
+    ${...}) is checked: its nearest existing ancestor must be a writable folder."""
+    multirun = any(a in ("-m", "--multirun") for a in argv)
+    key = "hydra.sweep.dir" if multirun else "hydra.run.dir"
+    given = [a.split("=", 1)[1] for a in argv if re.fullmatch(rf"\+{{0,2}}{re.escape(key)}=.*", a)]
+    if given:
+        where = given[-1]
+    else:
+        conf = yaml.safe_load((conf_dir / "config.yaml").read_text()) or {}
+        where = ((conf.get("hydra") or {}).get("sweep" if multirun else "run") or {}).get("dir") or ""
+    fixed = Path(where.split("${", 1)[0] or ".").expanduser()
+    path = fixed if fixed.is_absolute() else Path.cwd() / fixed
+    while not path.exists() and path != path.parent:
+        path = path.parent
+    if not path.is_dir():
+        return f"{key}: cannot make the run folder {where}: {path} is not a folder"
+    if not os.access(path, os.W_OK | os.X_OK):
+        return f"{key}: cannot make the run folder {where}: {path} is not writable"
+    return None
+
+
 if __name__ == "__main__":
-    problem = unknown_choice(sys.argv[1:])
+    problem = unknown_choice(sys.argv[1:]) or unwritable_run_dir(sys.argv[1:])
     if problem:
         print(f"config error: {problem}", file=sys.stderr)
         sys.exit(2)

@@ -31,7 +31,7 @@ from cloth.collision.untangle import find_intersections
 from cloth.core.material import Material
 from cloth.core.mesh import grid_mesh, merge_meshes
 from cloth.simulation import Simulation
-from experiments.build import build_buckling, build_camera, build_remesher, build_simulation
+from experiments.build import build_buckling, build_camera, build_remesher, build_simulation, command_line_wins
 from experiments.run import run_from_config
 
 ROOT = Path(__file__).resolve().parents[1]  # the repository
@@ -59,9 +59,11 @@ def config_choices(group: str) -> list[str]:
 
 
 def compose_config(*overrides: str, return_hydra_config: bool = False) -> DictConfig:
-    """conf/config.yaml composed with `overrides` (Hydra's command-line syntax)."""
+    """conf/config.yaml composed with `overrides` (Hydra's command-line syntax), the command line
+    winning over the scale preset as in experiments.run (experiments.build.command_line_wins)."""
     with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides), return_hydra_config=return_hydra_config)
+        cfg = compose(config_name="config", overrides=list(overrides), return_hydra_config=return_hydra_config)
+    return command_line_wins(cfg, overrides)
 
 
 def mode_overrides(mode: str, camera: str = VIEWDEP_CAMERA) -> tuple[str, ...]:

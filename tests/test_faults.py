@@ -161,7 +161,10 @@ def test_sigterm_to_a_running_experiments_run_writes_its_records_and_resume_comp
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    assert proc.returncode != 0, err.decode()
+    # one line naming the signal and how to continue, exit 128 + SIGTERM, as a shell reports it
+    assert proc.returncode == 128 + signal.SIGTERM, err.decode()
+    lines = err.decode().strip().splitlines()
+    assert len(lines) == 1 and "interrupted (SIGTERM)" in lines[0] and "experiments.resume" in lines[0], lines
     summary = json.loads((run / "summary.json").read_text())
     assert summary["status"] == "interrupted" and summary["message"] == "stopped by SIGTERM"
     frames = pd.read_parquet(run / "frames.parquet")

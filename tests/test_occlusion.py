@@ -177,7 +177,7 @@ def test_bad_occlusion_values_are_named(bad):
                                            ("mode.view.occlusion_scale=-1", "occlusion_scale"),
                                            ("mode.view.occlusion=maybe", "occlusion")])
 def test_bad_occlusion_settings_in_the_config_name_the_key(override, key):
-    with pytest.raises(ConfigError, match=rf"mode\.view\.(view\.)?{key} "):
+    with pytest.raises(ConfigError, match=rf"mode\.view\.(view\.)?{key}[: ]"):
         build_sim("scene=sheet_on_sphere", "mode=viewdep", "camera=sheet_half", override)
 
 

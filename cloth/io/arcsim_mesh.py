@@ -135,6 +135,11 @@ def read_arcsim_obj(path) -> ArcsimObj:
     _check_lines(path)
     obj = read_obj(path, texcoords=True, encoding_errors="replace")
     node_x = obj.positions
+    for what, values in (("v", node_x), ("vt", obj.texcoords)):
+        bad = np.flatnonzero(~np.isfinite(np.asarray(values, dtype=np.float64)).all(axis=1)) if len(values) else []
+        if len(bad):
+            raise ObjError(f"{path}: {what} line {int(bad[0]) + 1} (of the {what} lines) has a coordinate that is not "
+                           f"a finite number: {np.asarray(values)[bad[0]].tolist()}")
     if not obj.faces:
         raise ObjError(f"{path}: has no faces")
     n_vt = obj.texcoords.shape[0]

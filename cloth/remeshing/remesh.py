@@ -63,6 +63,19 @@ class RemeshParams:
     # a face past the StVK softening point (stretch 1/sqrt(3)), where the implicit step blows up.
     max_world_strain: float = 0.2
 
+    def __post_init__(self):
+        if not 0 < self.aspect_min <= 1:
+            raise ValueError(f"aspect_min must be in (0, 1], got {self.aspect_min}")
+        for key in ("collapse_max_size", "max_world_strain"):
+            if not getattr(self, key) > 0:
+                raise ValueError(f"{key} must be > 0, got {getattr(self, key)}")
+        for key in ("flip_threshold", "corner_angle"):
+            if not getattr(self, key) >= 0:
+                raise ValueError(f"{key} must be >= 0, got {getattr(self, key)}")
+        for key in ("max_split_rounds", "max_collapse_rounds"):
+            if not getattr(self, key) >= 1:
+                raise ValueError(f"{key} must be >= 1 pass, got {getattr(self, key)}")
+
 
 @dataclass
 class RemeshResult:
