@@ -68,11 +68,13 @@ def test_compare_modes_tabulates_the_three_modes(tmp_path):
 
 def test_stability_tool_writes_csv_and_markdown(tmp_path):
     from experiments.stability import main
-    main(["--scale", "small", "--frames", "2", "--cases", "one_frame_step", "--out", str(tmp_path)])
+    main(["--scale", "small", "--frames", "2", "--seeds", "2", "--cases", "one_frame_step", "--out", str(tmp_path)])
     out = _only_child(tmp_path)
     table = pd.read_csv(out / "table.csv")
-    assert list(table["case"]) == ["one_frame_step"] and bool(table["ok"].iloc[0])
+    assert list(table["case"]) == ["one_frame_step"] * 2 and list(table["seed"]) == [0, 1] and table["ok"].all()
     assert "one_frame_step" in (out / "table.md").read_text()
+    cases = (out / "cases.md").read_text()
+    assert "seeds 0-1" in cases and "| one_frame_step | 2 | 2 |" in cases  # seeds run, seeds passed
 
 
 def test_collision_cost_tabulates_the_share_of_collisions(tmp_path):
