@@ -419,6 +419,14 @@ def command_line_wins(cfg: DictConfig, overrides) -> DictConfig:
 MODE_KEYS = {"nonadaptive": {"name", "buckling"},
              "adaptive": {"name", "every", "sizing", "remesh", "pop_filter", "buckling"},
              "viewdep": {"name", "every", "sizing", "remesh", "pop_filter", "buckling", "view"}}
+# The top-level keys a run reads or records (conf/config.yaml, its groups, and what the study
+# presets of conf/experiment and conf/point set: `points`, `baseline`); any other is refused,
+# never silently ignored (`+foo=1`, a key mistyped with a `+`).
+TOP_LEVEL_KEYS = frozenset({"camera", "scene", "mode", "material", "solver", "output", "frames", "seed", "repeats",
+                            "scale", "resolution_factor", "crowd_jobs", "crowd_backend", "max_speed", "study",
+                            "reference", "reference_member", "variant", "drape_mesh", "points", "baseline"})
+# The keys of a scene (conf/scene/*.yaml): the others are refused.
+SCENE_KEYS = frozenset({"name", "effects", "frames", "params", "scales", "view"})
 # output.* (conf/output/default.yaml): what each is, checked before any run.
 OUTPUT_INTS = ("obj_every", "stills_every", "states_every", "checkpoint_every")  # frames, 0: never
 OUTPUT_BOOLS = ("rerun", "progress")
@@ -492,6 +500,10 @@ def _scene_builder_check(name: str, params: dict) -> dict:
 def build(cfg: DictConfig, character: int | None = None) -> Built:
     """Every config value checked, then the objects built (:class:`Built`); ConfigError names
     the key of the first bad value. Nothing is simulated or written."""
+    for key in cfg:
+        _require(key in TOP_LEVEL_KEYS, str(key), f"unknown top-level key; known: {', '.join(sorted(TOP_LEVEL_KEYS))}")
+    for key in cfg.get("scene") or {}:
+        _require(key in SCENE_KEYS, f"scene.{key}", f"unknown scene key; known: {', '.join(sorted(SCENE_KEYS))}")
     n_frames = run_frames(cfg)
     seed = cfg.get("seed")
     _check_int(seed, "seed", 0, " (it seeds the scene's random choices)")

@@ -56,6 +56,9 @@ BAD = [
      "scene.scales.small.sizing.size_min"),
     (("+scene.params.resolution=10", "scene.scales.small.resolution=12"), "scene.scales.small.resolution"),
     # top level
+    (("+foo=1",), "foo"),
+    (("+max_sped=10",), "max_sped"),
+    (("+scene.framez=10",), "scene.framez"),
     (("max_speed=-1",), "max_speed"),
     (("max_speed=nan",), "max_speed"),
     (("seed=abc",), "seed"),
