@@ -200,6 +200,9 @@ def main(argv=None) -> None:
     ap.add_argument("--long", action="store_true", help=f"also the long cases ({long_cases})")
     ap.add_argument("--cases", nargs="+", default=None, choices=CASE_NAMES)
     ap.add_argument("--out", type=Path, default=Path("results/stability"))
+    ap.add_argument("--report", type=Path, default=None,
+                    help="also write the tables, with the commit and command, to this Markdown file "
+                         "(e.g. docs/stability.md), after every run")
     args = ap.parse_args(argv)
     if args.seeds < 1:
         ap.error(f"--seeds: must be at least 1, got {args.seeds}")
@@ -225,12 +228,32 @@ def main(argv=None) -> None:
             write_text_atomic(out / "table.csv", table.to_csv(index=False))
             write_text_atomic(out / "table.md", markdown(table.drop(columns=["what"])))
             write_text_atomic(out / "cases.md", header + markdown(case_table(table)))
+            if args.report is not None:
+                write_text_atomic(args.report, report(header, table, len(names) * args.seeds))
     print(table.drop(columns=["what"]).to_string(index=False))
     print()
     print(case_table(table).to_string(index=False))
     print(f"\nresults in {out}")
     if not table["ok"].all():
         raise SystemExit(1)
+
+
+REPORT_COLUMNS = ["case", "seed", "ok", "frames_run", "error", "max_kinetic_energy_j", "kinetic_energy_bound_j",
+                  "intersections_left_max", "self_collisions_left_max", "self_collision", "crossings_at_end",
+                  "min_face_quality", "faces_max", "steps_rejected", *(f"rejected_{k}" for k in STEP_CHECKS),
+                  "dt_min_s", "s_per_frame"]
+
+
+def report(header: str, table: pd.DataFrame, runs_planned: int) -> str:
+    """The suite's Markdown report: what ran, one row per case, one row per case and seed."""
+    done = "" if len(table) >= runs_planned else f"**Partial: {len(table)} of {runs_planned} runs so far.**\n\n"
+    checks = ("A run passes when it reaches its last frame with every value finite, the kinetic energy "
+              "within the case's bound, no intersection left after untangling or collisions, no crossing "
+              "face pair at the end where the scene declares self_collision, and no face below "
+              f"QUALITY_MIN = {QUALITY_MIN:.4f}. s_per_frame is a median of runs that shared the machine "
+              "with other jobs: not a timing.\n\n")
+    return ("# Stability suite\n\n" + header + done + checks + "## Per case\n\n" + markdown(case_table(table))
+            + "\n## Per case and seed\n\n" + markdown(table[[c for c in REPORT_COLUMNS if c in table.columns]]))
 
 
 def case_table(table: pd.DataFrame) -> pd.DataFrame:

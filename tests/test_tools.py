@@ -68,7 +68,12 @@ def test_compare_modes_tabulates_the_three_modes(tmp_path):
 
 def test_stability_tool_writes_csv_and_markdown(tmp_path):
     from experiments.stability import main
-    main(["--scale", "small", "--frames", "2", "--seeds", "2", "--cases", "one_frame_step", "--out", str(tmp_path)])
+    report = tmp_path / "report.md"
+    main(["--scale", "small", "--frames", "2", "--seeds", "2", "--cases", "one_frame_step",
+          "--out", str(tmp_path / "out"), "--report", str(report)])
+    tmp_path = tmp_path / "out"
+    text = report.read_text()
+    assert "commit" in text and "## Per case and seed" in text and "Partial" not in text
     out = _only_child(tmp_path)
     table = pd.read_csv(out / "table.csv")
     assert list(table["case"]) == ["one_frame_step"] * 2 and list(table["seed"]) == [0, 1] and table["ok"].all()
