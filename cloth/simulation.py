@@ -414,7 +414,8 @@ class Simulation:
         Counts the rejections into `stats` (steps_rejected, steps_rejected_<check>, dt_min_s)."""
         self.dt = self._frame_dt / 2 ** halvings
         self._step_ticks = 2 ** (MAX_STEP_HALVINGS - halvings)
-        for handle in self.scene.handles:  # the phase of the step's start (idempotent: a retry's is the same)
+        for handle in self.scene.handles:  # take hold, pin, let a spring fade, let go (Handle.update) at the
+            # step's start; idempotent, so a step taken again finds the phase it had
             handle.update(self.mesh.node_x, self.mesh.node_pinned, self.time)
         saved = self._save_step_state()
         self.step(timings, stats)
@@ -502,9 +503,7 @@ class Simulation:
     def step(self, timings: dict, stats: dict) -> None:
         """One implicit step of length self.dt with its contact and collision stages (unchecked:
         :meth:`_controlled_step` checks it, and undoes it if it fails)."""
-        stages, mesh, h = self.stages, self.scene.mesh, self.dt
-        for handle in self.scene.handles:  # take hold, pin, let a spring fade, let go (Handle.update)
-            handle.update(mesh.node_x, mesh.node_pinned, self.time)
+        stages, mesh, h = self.stages, self.scene.mesh, self.dt  # the handles' phases: _controlled_step
         collide = stages.self_collision or stages.obstacle_ccd
         self._step_gave_up = False  # set by resolve_collisions when its pass leaves collisions
         x_start = mesh.node_x.copy() if collide else None

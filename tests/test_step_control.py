@@ -100,17 +100,23 @@ def test_a_step_that_explodes_at_every_length_ends_the_run_after_the_last_halvin
     assert summary["status"] == "diverged" and f"frame {BAD_FRAME + 1}" in summary["message"]
 
 
+def _start_frame(sim):
+    """Empty timings and counters, and the frame's step bookkeeping, as advance_frame sets them up."""
+    timings = {p: 0.0 for p in simulation.PHASES}
+    stats = {"solver_iterations": 0, "solver_iterations_max": 0, "solver_residual": 0.0, "solves_capped": 0,
+             "contacts": 0, "dt_min_s": np.inf, **{k: 0 for k in simulation.STEP_RECORD if k != "dt_min_s"},
+             **simulation.COLLISION_RECORD, **simulation.STRAIN_LIMIT_RECORD}
+    sim._frame_dt, sim._substep, sim._ticks = sim.scene.frame_time / sim.scene.steps_per_frame, 0, 0
+    return timings, stats
+
+
 def test_a_rejected_step_restores_the_state_before_it(monkeypatch):
     """The state after an undone step is the state before it, bit for bit: taking the step again
     as two halves gives what two half steps from that state give without any rejection."""
     def two_halves(sim):
         for _ in range(BAD_FRAME):
             sim.advance_frame()
-        timings = {p: 0.0 for p in simulation.PHASES}
-        stats = {"solver_iterations": 0, "solver_iterations_max": 0, "solver_residual": 0.0, "solves_capped": 0,
-                 "contacts": 0, "dt_min_s": np.inf, **{k: 0 for k in simulation.STEP_RECORD if k != "dt_min_s"},
-                 **simulation.COLLISION_RECORD, **simulation.STRAIN_LIMIT_RECORD}
-        sim._frame_dt, sim._substep, sim._ticks = sim.scene.frame_time / sim.scene.steps_per_frame, 0, 0
+        timings, stats = _start_frame(sim)
         sim.last_dv = None  # the undone step leaves no warm start: compare with none
         sim._controlled_step(1, timings, stats)
         sim._controlled_step(1, timings, stats)
@@ -121,11 +127,7 @@ def test_a_rejected_step_restores_the_state_before_it(monkeypatch):
     _exploding(monkeypatch, sim, KICKS["speed"], longer_than=0.75 * sim.scene.frame_time / sim.scene.steps_per_frame)
     for _ in range(BAD_FRAME):
         sim.advance_frame()
-    timings = {p: 0.0 for p in simulation.PHASES}
-    stats = {"solver_iterations": 0, "solver_iterations_max": 0, "solver_residual": 0.0, "solves_capped": 0,
-             "contacts": 0, "dt_min_s": np.inf, **{k: 0 for k in simulation.STEP_RECORD if k != "dt_min_s"},
-             **simulation.COLLISION_RECORD, **simulation.STRAIN_LIMIT_RECORD}
-    sim._frame_dt, sim._substep, sim._ticks = sim.scene.frame_time / sim.scene.steps_per_frame, 0, 0
+    timings, stats = _start_frame(sim)
     sim._controlled_step(0, timings, stats)
     assert stats["steps_rejected"] == 1 and stats["dt_min_s"] == sim._frame_dt / 2
     np.testing.assert_array_equal(sim.mesh.node_x, reference[0])
