@@ -57,12 +57,12 @@ from experiments.compare_modes import markdown
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
 
-# The remesher's collapses keep the aspect 12 sqrt(3) A / P^2 of the faces they make at or above
-# aspect_min = 0.2; the recorded quality 4 sqrt(3) A / sum(l^2) is at least a third of that aspect
-# (sum(l^2) <= P^2), so a face made so may not fall below QUALITY_MIN. Flips and splits are not
-# guarded (as in ARCSim): beside a seam, whose nodes are never collapsed, a flip to the metric's
-# Delaunay diagonal made a face of aspect 0.073 (karate_no_floor, seed 1, frame 1): the bound is
-# the remesher's own claim, and the case that breaks it is kept failing, not the bound loosened.
+# The remesher keeps the aspect 12 sqrt(3) A / P^2 of the faces it makes by a collapse or a flip at
+# or above aspect_min = 0.2 (a flip may also improve a face that was worse); the recorded quality
+# 4 sqrt(3) A / sum(l^2) is at least a third of that aspect (sum(l^2) <= P^2). A split of a thin
+# face's short edge can make faces of a third of its quality, which the flips after it repair,
+# unless the crossing guard froze them (karate_no_floor, seed 1, frame 26: 0.064); the guard then
+# keeps the unguarded remesh (cloth.remeshing.adaptive). The bound is the remesher's own claim.
 QUALITY_MIN = 0.2 / 3
 PAPER_FRAMES = 100  # frames per run at scale=paper
 # Kinetic energy bound: the cloth cannot move faster on average than a free fall from

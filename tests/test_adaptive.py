@@ -166,6 +166,41 @@ def test_crossing_guard_redoes_a_remesh_that_makes_the_cloth_cross_itself():
     assert guarded.collapses > 0 and guarded.mesh.n_faces < mesh.n_faces
 
 
+def test_crossing_guard_drops_a_redo_that_makes_a_sliver(monkeypatch):
+    """Frozen nodes block the flips that repair a split's thin faces; a redo whose worst face falls
+    below the quality floor (aspect_min / 3, or the plain remesh's worst if lower) is dropped, and
+    the plain remesh is kept with its crossings, for the untangling."""
+    from types import SimpleNamespace
+
+    import cloth.remeshing.adaptive as adaptive
+    from cloth.core.mesh import grid_mesh, merge_meshes
+    from cloth.remeshing.remesh import remesh
+
+    sheets = [grid_mesh(0.4, 0.4, 16, 16) for _ in range(2)]  # the crossing case above
+    for m, dz in zip(sheets, (0.0, 0.001)):
+        m.node_x[:, 2] = 0.005 * np.sin(2 * np.pi * m.node_x[:, 0] / 0.2) + dz
+    mesh = merge_meshes(sheets)
+    mesh.update_rest_data(0.12)
+    vert_M = np.tile(np.eye(2) / 0.2 ** 2, (mesh.n_verts, 1, 1))
+    data = np.hstack([mesh.node_x, mesh.node_v])
+    handle = np.full(mesh.n_nodes, -1)
+    handle[sheets[0].n_nodes:] = 0
+    plain = remesh(mesh, vert_M, data, handle)
+    floor = min(adaptive.RemeshParams().aspect_min / 3, plain.mesh.face_quality().min())
+    redos = []
+
+    def sliver_redo(*args, frozen=None, **kw):  # the redo, with its worst face just under the floor
+        redos.append(frozen.sum())
+        return SimpleNamespace(mesh=SimpleNamespace(face_quality=lambda: np.array([0.999 * floor])))
+
+    monkeypatch.setattr(adaptive, "remesh", sliver_redo)
+    stats = {}
+    kept = adaptive.AdaptiveRemesher()._avoid_crossings(mesh, vert_M, data, handle, plain, stats)
+    assert len(redos) == 1 and redos[0] > 0
+    assert kept is plain and count_crossings(kept.mesh) > 0
+    assert stats["remesh_guard_refused"] == 1 and "remesh_guard_rounds" not in stats
+
+
 # Energy left by the pop filter after refining coarse cloth draped on the sphere (J, seeds 0-5):
 # one pop filter then one push-out 14.3, 15.7, 21.6, 18.4, 16.5, 9.1; alternated three times
 # 9.3, 9.2, 14.1, 12.3, 11.5, 6.5. The largest Green strain is no measure of it: a few faces

@@ -8,7 +8,7 @@ import pytest
 
 from cloth.core.mesh import Mesh, grid_mesh
 from cloth.remeshing.kernels.collapses import try_collapse
-from cloth.remeshing.kernels.flips import flip
+from cloth.remeshing.kernels.flips import flip, flip_all
 from cloth.remeshing.kernels.halfedge import RING_MAX, retwin
 from cloth.remeshing.kernels.splits import split
 from cloth.remeshing.remesh import RemeshParams, RemeshWork, remesh
@@ -464,3 +464,40 @@ def test_after_remesh_every_interior_edge_is_anisotropically_delaunay():
     sc, cc = angle_terms(ga, gb, gc)
     sd, cd = angle_terms(ga, gb, gd)
     assert (sc * cd + cc * sd < -RemeshParams().flip_threshold).mean() > DELAUNAY_LEFT_FRACTION
+
+
+# ---------------------------------------------------------------------------------------------
+# the flip's material-aspect guard
+def _quad(diagonal: str) -> Mesh:
+    """Four verts a=(-1, 0), b=(1, 0), c=(0, 0.1), d=(0, -0.1), split by the long diagonal a-b
+    ('ab': two faces of material aspect 0.129) or the short one c-d ('cd': aspect 0.426)."""
+    u = np.array([[-1.0, 0.0], [1.0, 0.0], [0.0, 0.1], [0.0, -0.1]])
+    faces = [[0, 1, 2], [1, 0, 3]] if diagonal == "ab" else [[0, 3, 2], [3, 1, 2]]
+    x = np.hstack([u, np.zeros((4, 1))])
+    return Mesh(node_x=x, node_v=np.zeros((4, 3)), node_pinned=np.zeros(4, bool), vert_u=u,
+                vert_node=np.arange(4, dtype=np.int32), face_verts=np.array(faces, dtype=np.int32))
+
+
+def _flips(mesh, metric, aspect_min):
+    w = RemeshWork(mesh, np.tile(metric, (mesh.n_verts, 1, 1)), node_data(mesh), free(mesh))
+    n = flip_all(w.fv, w.fadj, w.ftw, w.falive, w.vu, w.vM, w.vface, w.vnode, w.nd, np.inf, w.cnt, w.fdirty,
+                 RemeshParams().flip_threshold, -1, aspect_min)
+    check_work(w)
+    return n
+
+
+# A metric 100x finer across the quad than along it makes a-b the Delaunay diagonal in metric space.
+ACROSS = np.diag([1.0, 1e4])
+
+
+def test_a_flip_to_a_material_sliver_is_refused_below_aspect_min():
+    quad = _quad("cd")
+    assert quad.face_quality().min() > 0.2
+    assert _flips(_quad("cd"), ACROSS, aspect_min=0.2) == 0  # the new faces (0.129) would fall below 0.2
+    assert _flips(_quad("cd"), ACROSS, aspect_min=0.1) == 1  # the same flip, allowed at a lower bound
+
+
+def test_a_flip_that_improves_faces_below_aspect_min_is_taken():
+    # isotropic metric: c-d is the Delaunay diagonal; both before (0.129) and after (0.426) are below
+    # 0.5, but the flip makes the worst face better, so it is taken
+    assert _flips(_quad("ab"), np.eye(2), aspect_min=0.5) == 1

@@ -3,7 +3,7 @@
 Once every `every` frames, before the frame's steps:
 
     sizing field per face  ->  area-weighted transfer to verts  ->  remesh (cloth.remeshing.remesh)
-    [->  crossing guard: redo the remesh with new crossings' nodes frozen]
+    [->  crossing guard: redo the remesh with new crossings' nodes frozen, unless that makes a sliver]
     ->  rebuild masses, rest data, sparsity (Simulation.rebuild)
     ->  push nodes out of obstacles  ->  pop filter  ->  push nodes out of obstacles
     [->  the push-outs' and pop filter's motion made free of self-collisions]
@@ -179,6 +179,9 @@ class AdaptiveRemesher:
         """
         n_before = None
         frozen = np.zeros(mesh.n_nodes, dtype=bool)
+        # a face of aspect 12 sqrt(3) A / P^2 >= aspect_min has quality 4 sqrt(3) A / sum(l^2) >=
+        # aspect_min / 3 (sum(l^2) <= P^2): the bound a redo may not break unless the unguarded remesh did
+        quality_floor = min(self.params.aspect_min / 3, float(result.mesh.face_quality().min()))
         for r in range(CROSSING_GUARD_ROUNDS):
             out = result.mesh
             pairs = find_intersections(out.face_nodes, out.node_x)[0]
@@ -199,7 +202,14 @@ class AdaptiveRemesher:
             if frozen[near].all():
                 break  # nothing more to freeze: the crossings were there before
             frozen[near] = True
-            result = remesh(mesh, vert_M, data, handle_id, self.params, frozen=frozen)
+            redo = remesh(mesh, vert_M, data, handle_id, self.params, frozen=frozen)
+            if redo.mesh.face_quality().min() < quality_floor:
+                # frozen nodes block the flips that repair a split's thin faces (a split of a thin
+                # face's short edge makes faces of a third of its quality): the crossing is left to
+                # the untangling rather than a sliver to the solver
+                stats["remesh_guard_refused"] = stats.get("remesh_guard_refused", 0) + 1
+                break
+            result = redo
             stats.update(remesh_guard_rounds=r + 1, remesh_frozen_nodes=int(frozen.sum()))
         return result
 

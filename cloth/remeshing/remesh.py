@@ -8,7 +8,8 @@ satisfy the size criterion of the paper's eq 1,
 with as few faces as it can:
 
 1. flip every edge that is not anisotropically Delaunay (Bossen and Heckbert 1996) under the
-   mean metric of its four verts;
+   mean metric of its four verts, unless a new face would fall below `aspect_min` in material
+   space and below the worse of the two it replaces (the metric's diagonal can be a sliver);
 2. split invalid edges (s > 1) worst first, at the midpoint, and flip around each split;
    repeat until no edge is invalid;
 3. collapse an edge when every edge the collapse creates has s <= `collapse_max_size` (0.9),
@@ -51,7 +52,7 @@ from cloth.remeshing.kernels.splits import OUT_OF_CAPACITY, split_pass
 
 @dataclass(frozen=True)
 class RemeshParams:
-    aspect_min: float = 0.2  # smallest allowed aspect 12*sqrt(3)*A/P^2 (1 = equilateral) of a collapse's faces
+    aspect_min: float = 0.2  # smallest aspect 12*sqrt(3)*A/P^2 (1 = equilateral) a collapse or flip may make
     collapse_max_size: float = 0.9  # a collapse may create no edge with s above this
     flip_threshold: float = 1e-2  # flip when sin(alpha + beta) < -threshold in metric space
     corner_angle: float = 0.5  # rad: boundary verts where the boundary turns more than this are kept
@@ -212,13 +213,14 @@ def remesh(mesh: Mesh, vert_M: np.ndarray, node_data: np.ndarray, node_handle: n
     w = RemeshWork(mesh, vert_M, node_data, np.asarray(node_handle, dtype=np.int64))
     thr = params.flip_threshold
     ms = params.max_world_strain
+    am = params.aspect_min
     flips = flip_all(w.fv, w.fadj, w.ftw, w.falive, w.vu, w.vM, w.vface, w.vnode, w.nd, ms, w.cnt, w.fdirty, thr,
-                     fz)
+                     fz, am)
     splits = 0
     while True:
         status, s, fl = split_pass(w.fv, w.fadj, w.ftw, w.falive, w.vu, w.vM, w.vnode, w.vface, w.valive,
                                    w.nd, w.npin, w.nnv, w.nalive, w.cnt, w.fdirty, thr, params.max_split_rounds, ms,
-                                   fz)
+                                   fz, am)
         splits += s
         flips += fl
         if status == OUT_OF_CAPACITY:

@@ -219,7 +219,7 @@ def collapse_pass(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, npin, nnv
                         stack[n_stack] = 3 * buf[i] + s
                         n_stack += 1
             flips += flip_pass(fv, fadj, ftw, falive, vu, vM, vface, vnode, nd, max_strain, stack, n_stack,
-                                threshold, 256, fdirty, fz)
+                                threshold, 256, fdirty, fz, aspect_min)
         collapses += done
         if done == 0:
             break

@@ -131,7 +131,7 @@ def split(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, nd, npin, nnv, na
 
 @nb.njit(cache=True)
 def split_pass(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, nd, npin, nnv, nalive, cnt, fdirty,
-               threshold, max_rounds, max_strain, fz):
+               threshold, max_rounds, max_strain, fz, aspect_min):
     """Split every invalid edge, worst first, flipping around each split; repeat until none is invalid.
 
     Returns (status, splits, flips); status OUT_OF_CAPACITY asks the driver to grow and call again.
@@ -180,5 +180,5 @@ def split_pass(fv, fadj, ftw, falive, vu, vM, vnode, vface, valive, nd, npin, nn
                              h, cnt, fdirty, stack)
             splits += 1
             flips += flip_pass(fv, fadj, ftw, falive, vu, vM, vface, vnode, nd, max_strain, stack, n_stack,
-                                threshold, 64, fdirty, fz)
+                                threshold, 64, fdirty, fz, aspect_min)
     return 0, splits, flips
