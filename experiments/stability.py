@@ -4,12 +4,16 @@ self_collision) and no face below the quality bound.
 
     python -m experiments.stability [--scale paper|small] [--seeds 5] [--long] [--frames N]
                                     [--cases crushed_sheet karate_2x] [--out DIR]
+                                    [--report docs/stability.md] [--resume TABLE.csv]
 
 runs every case for seeds 0 .. N-1 (the scene's jitter; the larger versions with --scale paper,
 100 frames, each case's own frames at --scale small) and writes <out>/<timestamp>/table.csv and
 table.md (default out: results/stability; one row per case and seed: the checks and the figures
 behind them, and what step control rejected) and cases.md (one row per case: seeds passed). It
-exits 1 unless every run passed. tests/stability/ runs the short cases at scale=small for two seeds.
+exits 1 unless every run passed. `--report` writes the tables with the commit to a Markdown page
+and the runs beside it (.csv); `--resume` takes such a table and runs only what it lacks, so that
+the paper-scale suite (hours) can run over several sittings. tests/stability/ runs the short
+cases at scale=small for two seeds.
 
 Each case is a scene and mode with a few overrides:
 
@@ -205,34 +209,44 @@ def main(argv=None) -> None:
     ap.add_argument("--out", type=Path, default=Path("results/stability"))
     ap.add_argument("--report", type=Path, default=None,
                     help="also write the tables, with the commit and command, to this Markdown file "
-                         "(e.g. docs/stability.md), after every run")
+                         "(e.g. docs/stability.md), and the per-run table beside it (.csv), after every run")
+    ap.add_argument("--resume", type=Path, default=None,
+                    help="a table.csv (or a report's .csv) of an earlier, unfinished suite: its runs at this "
+                         "scale and frame count are kept, not run again")
     args = ap.parse_args(argv)
     if args.seeds < 1:
         ap.error(f"--seeds: must be at least 1, got {args.seeds}")
     if args.frames is not None and args.frames < 1:
         ap.error(f"--frames: must be at least 1, got {args.frames}")
     names = args.cases or (CASE_NAMES if args.long else SHORT_CASE_NAMES)
+    frames_of = {n: args.frames or (case(n).frames_small if args.scale == "small" else PAPER_FRAMES) for n in names}
+    done = resumed_rows(args.resume, args.scale, frames_of, args.seeds) if args.resume is not None else {}
     out = args.out / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     out.mkdir(parents=True, exist_ok=True)
     code = code_version()
     header = (f"Stability suite, scale={args.scale}, seeds 0-{args.seeds - 1}, commit {code['git_commit']}"
               f"{' (with uncommitted changes)' if code['git_dirty'] else ''}, {datetime.now():%Y-%m-%d}: "
               f"`python -m experiments.stability {' '.join(argv if argv is not None else sys.argv[1:])}`\n\n")
+    commit = code["git_commit"] + ("+dirty" if code["git_dirty"] else "")
     rows = []
     for name in names:
         c = case(name)
-        frames = args.frames or (c.frames_small if args.scale == "small" else PAPER_FRAMES)
         for seed in range(args.seeds):
-            rows.append(run_case(c, frames, args.scale, seed))
-            r = rows[-1]
-            print(f"{name:20s} seed {seed}  ok={r['ok']}  steps rejected {r['steps_rejected']}  {r['error']}",
-                  flush=True)
+            if (name, seed) in done:
+                rows.append(done[(name, seed)])
+                print(f"{name:20s} seed {seed}  kept from {args.resume}", flush=True)
+            else:
+                rows.append({"scale": args.scale, **run_case(c, frames_of[name], args.scale, seed), "commit": commit})
+                r = rows[-1]
+                print(f"{name:20s} seed {seed}  ok={r['ok']}  steps rejected {r['steps_rejected']}  {r['error']}",
+                      flush=True)
             table = pd.DataFrame(rows)  # written after every run: a killed run keeps what it had
             write_text_atomic(out / "table.csv", table.to_csv(index=False))
             write_text_atomic(out / "table.md", markdown(table.drop(columns=["what"])))
             write_text_atomic(out / "cases.md", header + markdown(case_table(table)))
             if args.report is not None:
                 write_text_atomic(args.report, report(header, table, len(names) * args.seeds))
+                write_text_atomic(args.report.with_suffix(".csv"), table.to_csv(index=False))
     print(table.drop(columns=["what"]).to_string(index=False))
     print()
     print(case_table(table).to_string(index=False))
@@ -241,15 +255,38 @@ def main(argv=None) -> None:
         raise SystemExit(1)
 
 
+def resumed_rows(path: Path, scale: str, frames_of: dict, seeds: int) -> dict:
+    """{(case, seed): row} of an earlier suite's table that this one would run the same way: its
+    scale, a case of this suite at the same frame count, a seed below `seeds`. A missing or unreadable
+    table is an error (one message naming the file), not a silent fresh start."""
+    try:
+        old = pd.read_csv(path, keep_default_na=False)
+    except (OSError, ValueError) as exc:
+        raise SystemExit(f"--resume: cannot read {path}: {exc}") from None
+    missing = {"scale", "case", "seed", "frames", "ok", "commit"} - set(old.columns)
+    if missing:
+        raise SystemExit(f"--resume: {path} is not a stability table (no column {', '.join(sorted(missing))})")
+    keep = {}
+    for r in old.to_dict("records"):
+        if (r["scale"] == scale and r["case"] in frames_of and int(r["frames"]) == frames_of[r["case"]]
+                and 0 <= int(r["seed"]) < seeds):
+            r["ok"] = str(r["ok"]) == "True"
+            keep[(r["case"], int(r["seed"]))] = r
+    return keep
+
+
 REPORT_COLUMNS = ["case", "seed", "ok", "frames_run", "error", "max_kinetic_energy_j", "kinetic_energy_bound_j",
                   "intersections_left_max", "self_collisions_left_max", "self_collision", "crossings_at_end",
                   "min_face_quality", "faces_max", "steps_rejected", *(f"rejected_{k}" for k in STEP_CHECKS),
-                  "dt_min_s", "s_per_frame"]
+                  "dt_min_s", "s_per_frame", "commit"]
 
 
 def report(header: str, table: pd.DataFrame, runs_planned: int) -> str:
     """The suite's Markdown report: what ran, one row per case, one row per case and seed."""
     done = "" if len(table) >= runs_planned else f"**Partial: {len(table)} of {runs_planned} runs so far.**\n\n"
+    commits = sorted(set(table["commit"])) if "commit" in table else []
+    if len(commits) > 1:  # a resumed suite: say which runs are of which code
+        done += f"Runs of {len(commits)} commits (column commit): {', '.join(commits)}.\n\n"
     checks = ("A run passes when it reaches its last frame with every value finite, the kinetic energy "
               "within the case's bound, no intersection left after untangling or collisions, no crossing "
               "face pair at the end where the scene declares self_collision, and no face below "

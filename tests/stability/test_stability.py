@@ -58,3 +58,50 @@ def test_a_bad_argument_stops_before_any_run(argv, tmp_path, capsys):
         main([*argv, "--out", str(tmp_path)])
     assert info.value.code == 2 and argv[0] in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
+
+
+def _fake_run_case(calls):
+    def run(c, frames, scale, seed):
+        calls.append((c.name, seed))
+        return {"case": c.name, "seed": seed, "what": c.what, "frames": frames, "error": "", "frames_run": frames,
+                "max_kinetic_energy_j": 0.1, "kinetic_energy_bound_j": 1.0, "min_face_quality": 0.3,
+                "steps_rejected": 0, "s_per_frame": 0.1, "ok": True}
+    return run
+
+
+def test_resume_keeps_the_runs_an_earlier_suite_finished(tmp_path, monkeypatch):
+    """A killed suite resumed from its table runs only what it had not: the paper-scale suite takes
+    several sittings. The report's .csv beside it holds every run, with the commit that made it."""
+    import pandas as pd
+
+    import experiments.stability as stability
+
+    calls = []
+    monkeypatch.setattr(stability, "run_case", _fake_run_case(calls))
+    first = tmp_path / "first.md"
+    stability.main(["--scale", "small", "--cases", "crushed_sheet", "--seeds", "1", "--out", str(tmp_path / "a"),
+                    "--report", str(first)])
+    assert calls == [("crushed_sheet", 0)]
+    earlier = pd.read_csv(first.with_suffix(".csv"))
+    assert list(earlier["case"]) == ["crushed_sheet"] and earlier["commit"].notna().all()
+    calls.clear()
+    second = tmp_path / "second.md"
+    stability.main(["--scale", "small", "--cases", "crushed_sheet", "one_frame_step", "--seeds", "2",
+                    "--out", str(tmp_path / "b"), "--report", str(second), "--resume", str(first.with_suffix(".csv"))])
+    assert calls == [("crushed_sheet", 1), ("one_frame_step", 0), ("one_frame_step", 1)]  # seed 0 kept
+    table = pd.read_csv(second.with_suffix(".csv"))
+    assert len(table) == 4 and table["ok"].all()
+    calls.clear()  # another scale (or frame count) is another suite: nothing is kept
+    stability.main(["--scale", "small", "--frames", "3", "--cases", "crushed_sheet", "--seeds", "1",
+                    "--out", str(tmp_path / "c"), "--resume", str(second.with_suffix(".csv"))])
+    assert calls == [("crushed_sheet", 0)]
+
+
+def test_resume_from_a_file_that_is_not_a_table_stops(tmp_path):
+    from experiments.stability import main
+
+    bad = tmp_path / "bad.csv"
+    bad.write_text("a,b\n1,2\n")
+    with pytest.raises(SystemExit) as info:
+        main(["--scale", "small", "--out", str(tmp_path / "o"), "--resume", str(bad)])
+    assert "not a stability table" in str(info.value.code)
