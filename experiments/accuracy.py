@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from omegaconf import OmegaConf
+from tqdm import tqdm
 
 from cloth.eval import screenspace, visible
 from cloth.eval.screenspace import frame_errors, offscreen_distance, popping, render_state
@@ -68,6 +69,8 @@ FLOOR_SATURATION = 0.9
 # Frame times of a run and its reference are equal if they agree to this many seconds (config
 # values pass through YAML; the times of states are multiples of the frame time).
 TIME_TOL_S = 1e-9
+# A progress bar redraws at most this often (seconds): a log file gets a line per interval, not per frame.
+PROGRESS_INTERVAL_S = 10.0
 # Scene parameters that may differ between a run and its reference: the mesh resolution and the
 # presets that set it (the reference is finer by design).
 RESOLUTION_KEYS = ("resolution", "sizing", "reference")
@@ -259,7 +262,9 @@ def evaluate_runs(run_dirs, ref_dir, resolution_scale: float = 1.0) -> list[pd.D
     recent = [[] for _ in run_dirs]  # each run's last two (frame, shot, image): popping needs three
     seen = [[] for _ in run_dirs]  # each run's (shot, its statistics, the members' statistics) per frame
     numeric = [c for c in COLUMNS if c not in ("frame", "popping_px", *ENSEMBLE_COLUMNS, *visible.STATISTICS)]
-    for frame in sorted(set().union(*frames)):
+    # a bar on stderr: a study's evaluation of its runs takes minutes (issue: never a silent minute)
+    for frame in tqdm(sorted(set().union(*frames)), desc=f"accuracy: {len(run_dirs)} run(s), frames", unit="frame",
+                      mininterval=PROGRESS_INTERVAL_S):
         members = [_load(states[frame]) for states in ref_states]
         ref_img = {}  # the members' images under each distinct camera (runs share one path)
         ref_stats = {}  # and their statistics of visible cloth

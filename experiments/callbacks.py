@@ -84,7 +84,7 @@ def measure_accuracy(sweep_dir: Path, log=print, sync: dict | None = None) -> in
             for run in ([ref] if sync.get("reference", True) else []) + targets:
                 log(f"sync: {run.name} restarted from {ref.name}'s states")
                 try:
-                    table = evaluate_sync(run, ref, **opts)
+                    table = evaluate_sync(run, ref, **opts, log=log)
                 except AccuracyError as exc:  # e.g. a run too short for a window: the others go on
                     log(f"sync: {run.name} not measured: {exc}")
                     continue

@@ -40,6 +40,8 @@ from pathlib import Path
 import pandas as pd
 import yaml
 
+from experiments.progress import JobClock, StudyWatch, planned_runs
+
 ROOT = Path(__file__).resolve().parents[1]
 # in the order they run (the accuracy study first: Table 1's non-adaptive row depends on it)
 STUDIES = ("accuracy", "table1", "ablation_buckling", "ablation_buckling_dancer", "ablation_anticipation",
@@ -113,6 +115,18 @@ def study_parts(study: str, args, out: Path | None = None) -> list[tuple[str, li
                               f"crowd_jobs={crowd_jobs}", f"baseline={baseline}", points])]
 
 
+def plan(args) -> dict[str, int | None]:
+    """{folder: runs} of every multirun of the job, counted from the presets' sweeps with the job's
+    overrides (table1's fixed-mesh point is chosen later, after the accuracy study: it does not
+    change the count)."""
+    runs = {}
+    for study in args.studies:
+        for folder, extra in study_parts(study, args, None):
+            frames = [] if args.frames is None else [f"frames={args.frames}"]
+            runs[folder] = planned_runs(study, [f"scale={args.scale}", *frames, *extra, *args.overrides])
+    return runs
+
+
 def parse_args(argv=None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog="python -m experiments.paper", description=__doc__.split("\n")[0])
     ap.add_argument("--scale", default="small", choices=("small", "paper"))
@@ -156,12 +170,16 @@ def main(argv=None) -> int:
     # cache first, so the studies time simulation only.
     print("[0] compiling the solver's kernels once (numba cache), so that no timed frame pays for it", flush=True)
     subprocess.call(WARMUP + [f"hydra.run.dir={out / 'warmup'}"], cwd=ROOT, stdout=subprocess.DEVNULL)
+    clock = JobClock(plan(args))
+    print("[plan] " + ", ".join(f"{k} {'?' if n is None else n}" for k, n in clock.planned.items())
+          + " runs; a line when a run ends, with the time left estimated from the runs so far", flush=True)
     for i, study in enumerate(args.studies, 1):
         for folder, extra in study_parts(study, args, out):
             print(f"[{i}/{len(args.studies)}] study {study} at scale={args.scale} -> {out / folder}", flush=True)
             t0 = time.perf_counter()
             cmd = study_command(study, out, args.scale, args.jobs, args.frames, [*extra, *args.overrides], folder)
-            rc = subprocess.call(cmd, cwd=ROOT)
+            with StudyWatch(f"[{i}/{len(args.studies)}] {folder}:", folder, out / folder, clock):
+                rc = subprocess.call(cmd, cwd=ROOT)
             print(f"[{i}/{len(args.studies)}] study {study} ({folder}): {'done' if rc == 0 else f'FAILED (exit {rc})'} "
                   f"in {(time.perf_counter() - t0) / 60:.1f} min", flush=True)
             if rc != 0:
