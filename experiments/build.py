@@ -11,7 +11,9 @@ import dataclasses
 import importlib.util
 import inspect
 import math
+import os
 import re
+import sys
 import types
 import typing
 
@@ -322,21 +324,37 @@ def build_remesher(mode_cfg: DictConfig, sizing_overrides: dict, camera=None, fr
 
 
 # Where a crowd's characters run (crowd_backend): Ray tasks (a local Ray instance, or the cluster
-# at RAY_ADDRESS) or local processes (joblib's loky); experiments.crowd runs them.
-CROWD_BACKENDS = ("ray", "processes")
+# at RAY_ADDRESS), local processes (joblib's loky), or auto (the default): Ray when it is
+# installed and there is a Ray to use (RAY_ADDRESS set, or this process is itself a Ray task:
+# cluster=ray), else local processes. experiments.crowd runs them.
+CROWD_BACKENDS = ("auto", "ray", "processes")
 # A run config without the key was written before there was a choice: its crowd ran in processes.
 LEGACY_CROWD_BACKEND = "processes"
+RAY_MISSING = 'ray is not installed (pip install -e ".[ray]")'  # Ray is an extra (pyproject.toml)
+
+
+def ray_installed() -> bool:
+    """Ray can be imported here (the `ray` extra), found without importing it."""
+    return importlib.util.find_spec("ray") is not None
+
+
+def _in_ray() -> bool:
+    """This process is connected to Ray already (a Ray task): ray imported and initialised.
+    Never imports ray (about a second) to find out."""
+    ray = sys.modules.get("ray")
+    return ray is not None and bool(getattr(ray, "is_initialized", lambda: False)())
 
 
 def crowd_backend(cfg: DictConfig) -> str:
-    """The config's crowd_backend, checked: one of CROWD_BACKENDS, and Ray importable for 'ray'."""
+    """Where the config's crowd runs, 'ray' or 'processes': crowd_backend checked (one of
+    CROWD_BACKENDS, and Ray installed for 'ray') and 'auto' resolved."""
     backend = cfg.get("crowd_backend", LEGACY_CROWD_BACKEND)
     _require(backend in CROWD_BACKENDS, "crowd_backend",
              f"must be one of {', '.join(CROWD_BACKENDS)} (where a crowd's characters run), got {backend!r}")
+    if backend == "auto":
+        return "ray" if ray_installed() and (os.environ.get("RAY_ADDRESS") or _in_ray()) else "processes"
     if backend == "ray":
-        _require(importlib.util.find_spec("ray") is not None, "crowd_backend",
-                 "ray is not installed (pip install ray); or run the characters in local processes: "
-                 "crowd_backend=processes")
+        _require(ray_installed(), "crowd_backend", RAY_MISSING)
     return backend
 
 

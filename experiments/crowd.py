@@ -1,9 +1,12 @@
 """Where a crowd's characters run: each is an independent simulation, a task `task(*args)` that
 writes its own run folder (experiments.run.run_character, experiments.resume.resume_character).
 
-`crowd_backend` (experiments.build.CROWD_BACKENDS) picks how they run, `crowd_jobs` how many at once:
+`crowd_backend` (experiments.build.CROWD_BACKENDS) picks how they run, `crowd_jobs` how many at once.
+The default, ``auto``, is ``ray`` when Ray is installed (the ``ray`` extra) and there is a Ray to
+use (RAY_ADDRESS set, or this process is itself a Ray task), else ``processes``
+(experiments.build.crowd_backend resolves it; this module sees only the two):
 
-* ``ray`` (the default): one Ray task per character, each with one CPU and one thread
+* ``ray``: one Ray task per character, each with one CPU and one thread
   (MKL_NUM_THREADS, OMP_NUM_THREADS and NUMBA_NUM_THREADS set to 1 in the worker before anything
   loads, and numba's thread count set to 1 in the task), so that the characters never
   oversubscribe the cores. With RAY_ADDRESS set the tasks go to that cluster (``ray.init(address=

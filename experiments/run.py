@@ -47,6 +47,10 @@ from experiments.crowd import SHARE_ENV, run_characters, where
 # run. cloth.runner adds ~0.6 s (python -X importtime, on top of the imports above: pandas, tqdm,
 # the writers of a run) to the ~2.5 s of that answer.
 
+# The config tree, as an absolute path: `cloth-run` (a console script) imports this module as
+# experiments.run, and Hydra would then look for a relative config_path as a Python package.
+CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
+
 
 def make_recorder(cfg: DictConfig, out_dir: Path, root: str = "world", recording_id=None, log_camera=True,
                   name: str = "recording.rrd"):
@@ -174,7 +178,7 @@ def config_error(exc) -> None:
     sys.exit(2)
 
 
-@hydra.main(config_path="../conf", config_name="config", version_base="1.3")
+@hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
     hydra_cfg = hydra.core.hydra_config.HydraConfig.get()
     out_dir = Path(hydra_cfg.runtime.output_dir)
@@ -224,8 +228,6 @@ def main(cfg: DictConfig) -> None:
             sys.exit(3)
 
 
-CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
-
 
 def unknown_choice(overrides: list[str], conf_dir: Path = CONF_DIR) -> str | None:
     """The message for the first command-line choice of a config group that has no such config
@@ -271,9 +273,15 @@ def unwritable_run_dir(argv: list[str], conf_dir: Path = CONF_DIR) -> str | None
     return None
 
 
-if __name__ == "__main__":
+def cli() -> None:
+    """The command line (`python -m experiments.run`, `cloth-run`): a mistyped choice or a run
+    folder that cannot be made stops with one config error line, before Hydra composes."""
     problem = unknown_choice(sys.argv[1:]) or unwritable_run_dir(sys.argv[1:])
     if problem:
         print(f"config error: {problem}", file=sys.stderr)
         sys.exit(2)
     main()
+
+
+if __name__ == "__main__":
+    cli()

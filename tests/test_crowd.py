@@ -2,24 +2,28 @@
 the paper's 5 x 2 at ten), the crowd's camera frames the whole stage for any crowd (and is as
 written at ten), a tiny crowd runs on both backends (Ray tasks, local processes) and gathers each
 character's records into the crowd's (characters.csv, summary.json), a character that fails on Ray
-is named while the others finish, and bad crowd keys stop before any output."""
+is named while the others finish, bad crowd keys stop before any output, the default backend
+(auto) is Ray only when Ray is installed and there is a Ray to use, and crowd_backend=ray without
+Ray installed is one config error."""
 
 from __future__ import annotations
 
 import json
 import os
+import subprocess
+import sys
 
 import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from helpers import QUIET, ROOT, compose_config, read_frames, run_config, run_module
+from helpers import QUIET, ROOT, compose_config, module_env, read_frames, run_config, run_module
 from omegaconf import OmegaConf
 
 from cloth.runner import CHARACTER_COLUMNS, CHARACTERS_FILE
 from cloth.scenes.registry import crowd_columns, crowd_placement
 from cloth.view.paths import path_from_config
-from experiments.build import ConfigError, build_camera, crowd_size
+from experiments.build import ConfigError, build_camera, crowd_backend, crowd_size
 
 # Positions are sums and products of a few multiples of the spacing: exact but for round-off.
 ROUNDOFF = 1e-9
@@ -180,7 +184,7 @@ def test_the_old_count_key_is_named():
 
 def test_a_bad_backend_is_refused_before_any_output(tmp_path):
     out = tmp_path / "run"
-    with pytest.raises(ConfigError, match=r"^crowd_backend: must be one of ray, processes .*got 'threads'"):
+    with pytest.raises(ConfigError, match=r"^crowd_backend: must be one of auto, ray, processes .*got 'threads'"):
         run_config(out, *TINY_CROWD, "crowd_backend=threads")
     assert not out.exists()
     # the command line: one line naming the key, exit 2, nothing of a run in its folder
@@ -189,8 +193,49 @@ def test_a_bad_backend_is_refused_before_any_output(tmp_path):
                       timeout=120)
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines() == [
-        "config error: crowd_backend: must be one of ray, processes (where a crowd's characters run), got 'threads'"]
+        "config error: crowd_backend: must be one of auto, ray, processes (where a crowd's characters run), "
+        "got 'threads'"]
     assert {p.name for p in hydra_dir.iterdir()} <= {".hydra", "run.log"}  # Hydra's own, no run's file
+
+
+# experiments.run's command line in a process where `import ray` finds nothing (Ray not installed)
+WITHOUT_RAY = ("import sys; sys.modules['ray'] = None; sys.argv = ['cloth-run', *sys.argv[1:]]; "
+               "from experiments.run import cli; cli()")
+RAY_MISSING_LINE = 'config error: crowd_backend: ray is not installed (pip install -e ".[ray]")'
+
+
+def test_auto_runs_a_crowd_on_ray_only_when_ray_is_installed_and_there_is_a_ray_to_use(monkeypatch):
+    import experiments.build
+
+    cfg = compose_config("scene=multiple_dancers")
+    assert cfg.crowd_backend == "auto"  # the default
+    for installed, address, expected in ((True, None, "processes"), (True, "head:6379", "ray"),
+                                         (False, None, "processes"), (False, "head:6379", "processes")):
+        monkeypatch.setattr(experiments.build, "ray_installed", lambda installed=installed: installed)
+        if address is None:
+            monkeypatch.delenv("RAY_ADDRESS", raising=False)
+        else:
+            monkeypatch.setenv("RAY_ADDRESS", address)
+        assert crowd_backend(cfg) == expected, (installed, address)
+        # a stated backend is kept: processes whatever Ray there is
+        assert crowd_backend(OmegaConf.merge(cfg, {"crowd_backend": "processes"})) == "processes"
+
+
+def test_ray_without_ray_installed_is_one_config_error_before_any_work(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` fails, find_spec finds nothing
+    out = tmp_path / "run"
+    with pytest.raises(ConfigError) as exc:
+        run_config(out, *TINY_CROWD, "crowd_backend=ray")
+    assert f"config error: {exc.value}" == RAY_MISSING_LINE
+    assert not out.exists()
+    # the command line: that one line, exit 2, nothing of a run in its folder
+    hydra_dir = tmp_path / "cli"
+    proc = subprocess.run([sys.executable, "-c", WITHOUT_RAY, *TINY_CROWD, "crowd_backend=ray",
+                           f"hydra.run.dir={hydra_dir}"], cwd=ROOT, env=module_env(), capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [RAY_MISSING_LINE]
+    assert {p.name for p in hydra_dir.iterdir()} <= {".hydra", "run.log"}
 
 
 @pytest.mark.parametrize("backend", ["ray", "processes"])

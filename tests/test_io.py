@@ -119,6 +119,36 @@ def test_manifest_and_atomic_writers(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["f.parquet", "m.json"]
 
 
+# The solver's libraries and what runs and records a run: each named in every manifest.json.
+MANIFEST_PACKAGES = ("numpy", "scipy", "numba", "pypardiso", "mkl", "ray", "joblib", "rerun-sdk", "hydra-core",
+                     "omegaconf", "pyyaml", "pandas", "pyarrow")
+
+
+def test_manifest_records_the_solver_s_libraries_installed_or_not(monkeypatch):
+    from importlib import metadata
+
+    from cloth.io import manifest
+
+    packages = environment_manifest(0)["packages"]
+    assert set(MANIFEST_PACKAGES) <= set(packages)
+    for name in MANIFEST_PACKAGES:
+        assert packages[name] == manifest._version(name)  # a version, or "not installed"
+    # the solve's libraries travel with a checkpoint, whose resume compares them
+    assert {"pypardiso", "mkl", "numpy", "scipy", "numba"} <= set(manifest.code_version()["packages"])
+    # a package that is not there is said so, and the manifest is still written
+    real = metadata.version
+
+    def without_ray(name):
+        if name == "ray":
+            raise metadata.PackageNotFoundError(name)
+        return real(name)
+
+    monkeypatch.setattr(manifest.metadata, "version", without_ray)
+    packages = environment_manifest(0)["packages"]
+    assert packages["ray"] == manifest.NOT_INSTALLED == "not installed"
+    assert packages["numpy"] == real("numpy")
+
+
 def test_mesh_copy_is_independent():
     m = grid_mesh(1, 1, 2, 2)
     c = m.copy()

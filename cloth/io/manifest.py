@@ -36,8 +36,15 @@ from pathlib import Path
 
 import numpy as np
 
-PACKAGES = ("numpy", "scipy", "numba", "llvmlite", "hydra-core", "omegaconf", "pandas", "pyarrow",
-            "rerun-sdk", "trimesh", "tqdm", "matplotlib", "cloth")
+# The packages whose versions can change a result: the numerics, and the Cholesky solve's
+# pypardiso and MKL (PyPI's `mkl`). Recorded with a checkpoint too (code_version), and compared on resume.
+CODE_PACKAGES = ("numpy", "scipy", "numba", "llvmlite", "pypardiso", "mkl", "cloth")
+# Every package a run's manifest.json names: the above, and what configures, runs and records it.
+# A package that is not installed is recorded as NOT_INSTALLED (pypardiso and mkl off x86_64, ray
+# without the ray extra).
+PACKAGES = (*CODE_PACKAGES, "hydra-core", "omegaconf", "hydra-joblib-launcher", "pyyaml", "pandas", "pyarrow",
+            "rerun-sdk", "trimesh", "tqdm", "matplotlib", "joblib", "ray")
+NOT_INSTALLED = "not installed"
 ENV_VARS = ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "PYTHONHASHSEED",
             "CI")
 
@@ -46,7 +53,7 @@ def _version(pkg: str) -> str:
     try:
         return metadata.version(pkg)
     except metadata.PackageNotFoundError:
-        return "not installed"
+        return NOT_INSTALLED
 
 
 def _git(*args: str) -> str | None:
@@ -80,14 +87,14 @@ def _blas() -> str:
 @functools.lru_cache(maxsize=1)
 def _code_version() -> dict:
     """Which code produced a result: git commit, dirty flag, a hash of the uncommitted diff of
-    tracked files (None when clean), python and the numerical packages' versions."""
+    tracked files (None when clean), python and the versions of CODE_PACKAGES."""
     commit = _git("rev-parse", "HEAD")
     status = _git("status", "--porcelain", "--untracked-files=no") if commit else None
     diff = _git("diff", "HEAD") if status else None
     return {"git_commit": commit, "git_dirty": (bool(status) if status is not None else None),
             "git_diff_sha1": hashlib.sha1(diff.encode()).hexdigest() if diff else None,
             "python": sys.version.split()[0],
-            "packages": {p: _version(p) for p in ("numpy", "scipy", "numba", "llvmlite", "cloth")}}
+            "packages": {p: _version(p) for p in CODE_PACKAGES}}
 
 
 def code_version() -> dict:
