@@ -1,7 +1,8 @@
 """Whether a run's saved cloth states cross themselves or their obstacles: the check behind "nothing
 left intersecting", from the run's own files, without re-simulating.
 
-    python -m experiments.check_crossings RUN_DIR [--out DIR] [--frames a:b]
+    python -m experiments.check_crossings RUN_DIR [RUN_DIR ...] [--out DIR] [--frames a:b]
+                                          [--report docs/crossings.md]
 
 RUN_DIR is a run folder of ``python -m experiments.run`` with per-frame states
 (``output.states_every=N``; a crowd's ``dancer_*/states`` are checked character by character).
@@ -35,18 +36,23 @@ verdict covers the frames after it.
 clearance, the records' frames), and prints the frames that cross, or that none does. Exit code 0
 when no state after frame 0 crosses and no record says crossings were left, 1 otherwise, 2 for a
 bad input (a folder without states, an unreadable state
-file, ``--frames`` selecting none), named before any work.
+file, ``--frames`` selecting none), named before any work. With several RUN_DIRs each is checked in
+turn (the exit code is the worst); ``--report PATH`` also writes one Markdown page of every run's
+verdict with its scene, seed, faces, rejected steps and commit.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
+from datetime import datetime
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import yaml
 
 from cloth.collision.nearest import point_mesh_distance
 from cloth.collision.obstacles import CapsuleUnion
@@ -184,13 +190,68 @@ def summarize(table: pd.DataFrame, run_dir: Path, records: dict | None = None) -
     }
 
 
+REPORT_COLUMNS = ("run", "scene", "mode", "seed", "status", "frames", "faces_mean", "faces_max", "steps_rejected",
+                  "states_checked", "frames_crossing", "records_left_crossings", "collisions_gave_up", "clean",
+                  "commit")
+
+
+def report_row(run_dir: Path) -> dict:
+    """One run's line of the report: what ran (config, manifest), how it ended (summary.json) and the
+    verdict of its check (RUN_DIR/check_crossings/summary.json)."""
+    run_dir = Path(run_dir)
+    cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
+    end = json.loads((run_dir / "summary.json").read_text())
+    check = json.loads((run_dir / DEFAULT_OUT / "summary.json").read_text())
+    manifest = json.loads((run_dir / "manifest.json").read_text())
+    params = (cfg["scene"].get("params") or {})
+    scene = Path(params["conf"]).stem if params.get("conf") else cfg["scene"]["name"]
+    return {"run": run_dir.name, "scene": scene, "mode": cfg["mode"]["name"], "seed": cfg.get("seed"),
+            "status": end.get("status"), "frames": end.get("frames_completed"),
+            "faces_mean": round(float(end.get("faces_mean", float("nan")))),
+            "faces_max": int(end.get("faces_max", 0)), "steps_rejected": end.get("steps_rejected_total", 0),
+            "states_checked": check["states_checked"], "frames_crossing": check["frames_crossing"] or "none",
+            "records_left_crossings": check.get("records_left_crossings") or "none",
+            "collisions_gave_up": check.get("records_collisions_gave_up") or "none", "clean": check["clean"],
+            "commit": str(manifest.get("git_commit"))[:10] + ("+dirty" if manifest.get("git_dirty") else "")}
+
+
+def write_report(path: Path, run_dirs, command: str) -> None:
+    """A Markdown page of the runs' checks (one row per run), stamped with the date and command."""
+    rows = pd.DataFrame([report_row(d) for d in run_dirs], columns=list(REPORT_COLUMNS))
+    head = "| " + " | ".join(rows.columns) + " |\n|" + "---|" * len(rows.columns) + "\n"
+    body = "".join("| " + " | ".join(str(v) for v in r) + " |\n" for r in rows.itertuples(index=False))
+    clean = int(rows["clean"].sum())
+    text = (f"# Crossing checks\n\n{datetime.now():%Y-%m-%d}: `{command}`\n\n"
+            f"{clean} of {len(rows)} runs clean: no saved state after frame 0 with cloth crossing itself or an "
+            "obstacle, and no frame whose records say crossings were left (experiments.check_crossings).\n\n"
+            + head + body)
+    write_text_atomic(Path(path), text)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m experiments.check_crossings",
                                      description=__doc__.split("\n")[0])
-    parser.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="a run folder of python -m experiments.run")
-    parser.add_argument("--out", type=Path, default=None, help=f"output folder (default RUN_DIR/{DEFAULT_OUT})")
+    parser.add_argument("run_dirs", type=Path, nargs="+", metavar="RUN_DIR",
+                        help="run folders of python -m experiments.run (each checked in turn)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help=f"output folder of a single RUN_DIR (default RUN_DIR/{DEFAULT_OUT})")
     parser.add_argument("--frames", default=None, help="frames a:b (inclusive; a:, :b, k)")
+    parser.add_argument("--report", type=Path, default=None,
+                        help="also write a Markdown page of every RUN_DIR's verdict (e.g. docs/crossings.md)")
     args = parser.parse_args(argv)
+    if args.out is not None and len(args.run_dirs) > 1:
+        parser.error("--out: only with a single RUN_DIR (each run's check goes into RUN_DIR/check_crossings)")
+    codes = [check_one(d, args.out, args.frames) for d in args.run_dirs]
+    if args.report is not None and 2 not in codes:
+        argv_text = " ".join(argv if argv is not None else sys.argv[1:])
+        write_report(args.report, args.run_dirs, f"python -m experiments.check_crossings {argv_text}")
+        print(f"report: {args.report}")
+    return max(codes)
+
+
+def check_one(run_dir: Path, out: Path | None, frames: str | None) -> int:
+    """Check one run folder, write its crossings.csv and summary.json, print the verdict; the exit code."""
+    args = argparse.Namespace(run_dir=run_dir, out=out, frames=frames)
     try:
         table = check_run(args.run_dir, args.frames)
         records = record_frames(args.run_dir, args.frames)

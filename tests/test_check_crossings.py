@@ -167,3 +167,32 @@ def test_the_command_line(tmp_path):
     assert done.returncode == 1, done.stderr
     assert "crossing in frames 3" in done.stdout
     assert (tmp_path / "check_crossings" / "crossings.csv").read_text().startswith("frame,time_s,faces")
+
+
+def _run_folder(run, crossing: bool, seed: int):
+    """A run folder as experiments.run leaves it: states, config, summary and manifest."""
+    save(run, 0, cloth(CLOTH + [0.0, 0.0, 0.6], [[0, 1, 2]]), [triangles(THROUGH)])
+    save(run, 5, cloth(CLOTH if crossing else CLOTH + [0.0, 0.0, 0.6], [[0, 1, 2]]), [triangles(THROUGH)])
+    (run / "config.yaml").write_text(f"scene: {{name: arcsim, params: {{conf: /x/conf/flag.json}}}}\n"
+                                     f"mode: {{name: adaptive}}\nseed: {seed}\n")
+    (run / "summary.json").write_text(json.dumps({"status": "completed", "frames_completed": 5, "faces_mean": 1.0,
+                                                  "faces_max": 1, "steps_rejected_total": 0}))
+    (run / "manifest.json").write_text(json.dumps({"git_commit": "0123456789abcdef", "git_dirty": False}))
+
+
+def test_several_runs_and_their_report(tmp_path, capsys):
+    clean, bad = tmp_path / "flag_s0", tmp_path / "flag_s1"
+    for run, crossing, seed in ((clean, False, 0), (bad, True, 1)):
+        run.mkdir()
+        _run_folder(run, crossing, seed)
+    page = tmp_path / "crossings.md"
+    assert main([str(clean), str(bad), "--report", str(page)]) == 1  # the worst of the two
+    text = page.read_text()
+    assert "1 of 2 runs clean" in text and "python -m experiments.check_crossings" in text
+    lines = [x for x in text.splitlines() if x.startswith("| flag_s")]
+    assert lines[0].startswith("| flag_s0 | flag | adaptive | 0 | completed |") and "| none |" in lines[0]
+    assert lines[0].endswith("| True | 0123456789 |")
+    assert "| 5 |" in lines[1] and lines[1].endswith("| False | 0123456789 |")
+    with pytest.raises(SystemExit):  # one output folder for two runs: refused before any work
+        main([str(clean), str(bad), "--out", str(tmp_path / "o")])
+    assert not (tmp_path / "o").exists()
