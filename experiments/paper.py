@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shlex
 import subprocess
 import sys
 import time
@@ -40,7 +41,8 @@ from pathlib import Path
 import pandas as pd
 import yaml
 
-from experiments.progress import JobClock, StudyWatch, planned_runs
+from cloth.io.manifest import write_text_atomic
+from experiments.progress import Heartbeat, JobClock, StudyWatch, planned_runs
 
 ROOT = Path(__file__).resolve().parents[1]
 # in the order they run (the accuracy study first: Table 1's non-adaptive row depends on it)
@@ -140,6 +142,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--repeats", type=int, default=3, help="table1: runs per cell of karate and solo_dancer (seeds)")
     ap.add_argument("--crowd-repeats", type=int, default=1,
                     help="table1: runs per cell of the crowd (ten characters: ten times the cost)")
+    ap.add_argument("--docs", type=Path, default=None, metavar="DIR",
+                    help="also write the measurement pages into DIR (docs/results: the repository's) and the "
+                         "README's headline table (python -m paper_figures --docs)")
     ap.add_argument("overrides", nargs="*", help="extra Hydra overrides for every run (e.g. crowd_jobs=1)")
     args = ap.parse_args(argv)
     bad = [s for s in args.studies if s not in STUDIES]
@@ -168,8 +173,11 @@ def main(argv=None) -> int:
     # (seen: 38 s in a 150-frame run, 40% of its mean time per frame). One short run of the
     # view-dependent karate (remesh, viewdep sizing, body contact, self-collision) fills the
     # cache first, so the studies time simulation only.
+    write_text_atomic(out / "command.txt", shlex.join(["python", "-m", "experiments.paper",
+                                                       *(sys.argv[1:] if argv is None else argv)]) + "\n")
     print("[0] compiling the solver's kernels once (numba cache), so that no timed frame pays for it", flush=True)
-    subprocess.call(WARMUP + [f"hydra.run.dir={out / 'warmup'}"], cwd=ROOT, stdout=subprocess.DEVNULL)
+    with Heartbeat("[0] compiling"):
+        subprocess.call(WARMUP + [f"hydra.run.dir={out / 'warmup'}"], cwd=ROOT, stdout=subprocess.DEVNULL)
     clock = JobClock(plan(args))
     print("[plan] " + ", ".join(f"{k} {'?' if n is None else n}" for k, n in clock.planned.items())
           + " runs; a line when a run ends, with the time left estimated from the runs so far", flush=True)
@@ -186,7 +194,9 @@ def main(argv=None) -> int:
                 failed.append(folder)
     figures = out / "figures"
     print(f"figures and tables from {out} -> {figures}", flush=True)
-    rc = subprocess.call([sys.executable, "-m", "paper_figures", str(out), "--out", str(figures)], cwd=ROOT)
+    docs = [] if args.docs is None else ["--docs", str(args.docs.resolve())]
+    with Heartbeat("figures"):
+        rc = subprocess.call([sys.executable, "-m", "paper_figures", str(out), "--out", str(figures), *docs], cwd=ROOT)
     if rc != 0:
         failed.append("paper_figures")
     print(f"\nall done in {(time.perf_counter() - t_start) / 60:.1f} min")

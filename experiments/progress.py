@@ -79,6 +79,30 @@ class JobClock:
         return (study_left(current) if current else None), sum(study_left(n) for n in self.planned)
 
 
+class Heartbeat:
+    """A line every HEARTBEAT_S seconds while a step without runs of its own goes on (the main
+    job's kernel warm-up, its figures): ``with Heartbeat("[0] warm-up"): ...``."""
+
+    def __init__(self, label: str, log=print, heartbeat_s: float = HEARTBEAT_S):
+        self.label, self.log, self.heartbeat_s = label, log, heartbeat_s
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._beat, daemon=True)
+
+    def __enter__(self):
+        self._t0 = time.monotonic()
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+        return False
+
+    def _beat(self) -> None:
+        while not self._stop.wait(self.heartbeat_s):
+            self.log(f"{self.label}: still going after {minutes(time.monotonic() - self._t0)}")
+
+
 class StudyWatch:
     """Watches one study's sweep folder from a thread while its multirun runs (a context manager)."""
 

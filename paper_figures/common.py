@@ -168,11 +168,14 @@ def one_factor(runs: pd.DataFrame, factor: str, others) -> pd.DataFrame:
     return chosen.drop(columns="_f")
 
 
-def parse_and_load(prog: str, description: str, argv=None):
-    """The shared command line ROOT [ROOT ...] [--out DIR] [--paper-timings PATH]: parse it, check
-    the roots and the timings, load the runs and report the broken folders. Returns
-    (args, paper timings or None, RunSet), or None after one message naming a bad argument."""
+def parse_and_load(prog: str, description: str, argv=None, extra=None):
+    """The shared command line ROOT [ROOT ...] [--out DIR] [--paper-timings PATH] (and what
+    `extra(parser)` adds): parse it, check the roots and the timings, load the runs and report the
+    broken folders. Returns (args, paper timings or None, RunSet), or None after one message naming
+    a bad argument."""
     ap = argparse.ArgumentParser(prog=f"python -m {prog}", description=description)
+    if extra is not None:
+        extra(ap)
     ap.add_argument("roots", nargs="+", type=Path, help="folders searched for run folders")
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT})")
     ap.add_argument("--paper-timings", type=Path, default=None,

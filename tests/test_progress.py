@@ -69,3 +69,17 @@ def test_the_watch_reports_each_run_and_is_never_silent_for_a_heartbeat(tmp_path
     assert any("run 2/3 running for" in x or "run 1/3 running for" in x for x in lines)
     assert any("all 3 runs done; evaluating" in x for x in lines)
     assert len(clock.done["s"]) == 3
+
+
+def test_a_heartbeat_speaks_while_a_step_without_runs_goes_on():
+    import time
+
+    from experiments.progress import Heartbeat
+
+    said = []
+    with Heartbeat("[0] compiling", log=said.append, heartbeat_s=0.05):
+        time.sleep(0.3)
+    n = len(said)
+    assert n >= 2 and all(s.startswith("[0] compiling: still going after") for s in said), said
+    time.sleep(0.15)
+    assert len(said) == n  # silent once the step has ended

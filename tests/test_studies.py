@@ -249,6 +249,12 @@ def test_main_job_warms_the_kernel_cache_before_any_study(tmp_path, monkeypatch)
     overrides = [a for a in paper.WARMUP[3:]]
     cfg = compose_config(*overrides)
     assert cfg.scene.name == "karate" and cfg.mode.name == "viewdep"
+    # the command is kept for the measurement pages' stamp; --docs goes on to the figures
+    assert (tmp_path / "command.txt").read_text().strip() == \
+        f"python -m experiments.paper --out {tmp_path} --studies table1 accuracy"
+    calls.clear()
+    paper.main(["--out", str(tmp_path), "--studies", "table1", "--docs", str(tmp_path / "docs")])
+    assert calls[-1][2] == "paper_figures" and calls[-1][-2:] == ["--docs", str(tmp_path / "docs")]
 
 
 def test_table1_baseline_is_the_accuracy_study_s_equal_quality_mesh(tmp_path):

@@ -1,0 +1,77 @@
+"""paper_figures --docs: the measurement pages of docs/results/ and the README's headline table,
+written from the figures of a results root (run folders made by the tests)."""
+
+from __future__ import annotations
+
+from test_aggregate import _study_runs
+
+from paper_figures.docs import GENERATED_MARK, README_BEGIN, README_END
+
+COMMAND = "python -m experiments.paper --out results/paper/test"
+MACHINE = {"cpu_model": "Test CPU 9000", "cpu_count": 2, "numba_threads": 2, "git_commit": "abc"}
+
+
+def _figures(tmp_path, readme_text):
+    from paper_figures.__main__ import main as figures_main
+
+    root = tmp_path / "results"
+    _study_runs(root)
+    for manifest in root.rglob("manifest.json"):  # a machine to stamp
+        import json
+
+        m = json.loads(manifest.read_text())
+        manifest.write_text(json.dumps({**m, **MACHINE}))
+    (root / "command.txt").write_text(COMMAND + "\n")
+    readme = tmp_path / "README.md"
+    readme.write_text(readme_text)
+    docs = tmp_path / "docs" / "results"
+    rc = figures_main([str(root), "--out", str(tmp_path / "figures"), "--docs", str(docs), "--readme", str(readme)])
+    return rc, docs, readme
+
+
+def test_docs_pages_hold_the_tables_and_figures_with_their_stamp(tmp_path):
+    rc, docs, _ = _figures(tmp_path, "# x\n")
+    assert rc == 0
+    pages = {p.name for p in docs.glob("*.md")}
+    # the study runs have Table 1, a sweep, the buckling ablation and accuracy: no crowd scaling
+    assert pages == {"index.md", "table1.md", "pareto.md", "ablations.md", "sweeps.md"}, pages
+    for name in pages:
+        text = (docs / name).read_text()
+        assert text.startswith(GENERATED_MARK)
+        assert COMMAND in text and "Test CPU 9000, 2 cores" in text, name
+        for img in [line.split("(", 1)[1].rstrip(")") for line in text.splitlines() if line.startswith("![")]:
+            assert (docs / img).is_file(), (name, img)  # relative paths that resolve
+    table1 = (docs / "table1.md").read_text()
+    assert "## Table 1: this project" in table1
+    assert "![fig8_solo_dancer_small](img/fig8_solo_dancer_small.png)" in table1
+    assert "| [Table 1 and Fig. 8](table1.md) |" in (docs / "index.md").read_text()
+
+
+def test_docs_remove_what_they_no_longer_make_and_keep_hand_written_pages(tmp_path):
+    docs = tmp_path / "docs" / "results"
+    (docs / "img").mkdir(parents=True)
+    (docs / "old.md").write_text(GENERATED_MARK + "\n# an older generation's page\n")
+    (docs / "img" / "old.png").write_bytes(b"x")
+    (docs / "notes.md").write_text("# written by a person\n")
+    rc, docs, _ = _figures(tmp_path, "# x\n")
+    assert rc == 0
+    assert not (docs / "old.md").exists() and not (docs / "img" / "old.png").exists()
+    assert (docs / "notes.md").read_text() == "# written by a person\n"
+
+
+def test_the_readme_headline_table_is_rewritten_between_its_markers_only(tmp_path):
+    before, after = "# Project\n\nintro\n\n", "\n\n## Next section\n"
+    rc, docs, readme = _figures(tmp_path, before + README_BEGIN + "\nstale table\n" + README_END + after)
+    assert rc == 0
+    text = readme.read_text()
+    assert text.startswith(before) and text.endswith(after)
+    assert "stale table" not in text
+    block = text[text.index(README_BEGIN):text.index(README_END)]
+    # the synthetic table1 runs: adaptive 1.0 s, viewdep 0.5 s per frame -> 2.00x; the paper's solo 2.09x
+    assert "| solo_dancer | small | View-dependent | 20 | 9,638 | 0.500 | 7.550 | 2.00x | 2.09x |" in block, block
+    assert COMMAND in block and "(docs/results/index.md)" in block
+
+
+def test_a_readme_without_markers_is_left_as_it_is(tmp_path):
+    rc, _, readme = _figures(tmp_path, "# no markers here\n")
+    assert rc == 0 and readme.read_text() == "# no markers here\n"
