@@ -11,7 +11,7 @@ study found of adaptive's quality: the coarsest whose re-synchronised error is n
 worse than adaptive's; the preset's own fixed mesh when the accuracy study is not run or finds
 none), ``ablation_buckling`` (the drape test) and ``ablation_buckling_dancer`` (the standing dancer).
 Others on request (``--studies``), among them ``crowd_scaling`` (beyond the paper: adaptive and
-view-dependent crowds of 1, 10 and 100 dancers; hours at scale=small, see the README).
+view-dependent crowds of 1, 10 and 100 dancers; hours at scale=small, see docs/studies.md).
 
 Runs each study as a Hydra multirun (``python -m experiments.run -m +experiment=<study>``, joblib
 launcher, ``--jobs`` runs at a time: one by default, so that timed runs never compete) into
@@ -24,7 +24,7 @@ into ``<out>/figures/``, and the paths are printed. Before the studies, a two-fr
 A study that fails (a run that diverges, a killed process) does not stop the others: its run
 folders stay as written, the aggregation reports the broken ones by name and skips them, and the
 job exits non-zero at the end. At scale=small on 2 cores the whole job took 83.5 minutes from a
-clean clone (README: Quick start); at scale=paper expect a day or a cluster (README: Studies, Scale).
+clean clone (README: Quick start); at scale=paper expect a day or a cluster (docs/studies.md: Scale).
 """
 
 from __future__ import annotations

@@ -76,7 +76,7 @@ class ViewParams:
     skip_idle_remesh: bool = True
     # Occlusion (not in the paper, cloth.view.occlusion): a face in frame and front-facing that the
     # obstacles or the cloth hide gets nu_back; the z-buffer is occlusion_scale x the camera's image.
-    # On: the accuracy study found no loss with it (README, "Measured on this machine").
+    # On: the accuracy study found no loss with it (docs/results/pareto.md: the accuracy study with occlusion/off).
     occlusion: bool = True
     occlusion_scale: float = 0.25  # z-buffer size / the camera's image size (1280 x 720 -> 320 x 180)
 
