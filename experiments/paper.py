@@ -204,6 +204,7 @@ def main(argv=None) -> int:
     print(f"  Table 1:     {figures / 'table1.md'} (.csv, .tex)")
     print(f"  Fig. 8:      {figures}/fig8_*.png")
     print(f"  Pareto:      {figures / 'pareto.png'} ({figures / 'pareto.md'})")
+    print(f"  Report:      {out / 'report' / 'index.html'} (every table and figure on one page)")
     if "crowd_scaling" in args.studies:
         print(f"  Crowds:      {figures / 'crowd_scaling.md'} (.csv)")
     if failed:

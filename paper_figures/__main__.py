@@ -1,12 +1,13 @@
 """Make every figure and table from the run folders under the roots:
 
     python -m paper_figures ROOT [ROOT ...] [--out DIR] [--paper-timings PATH]
-                            [--docs DIR [--readme PATH] [--command TEXT]]
+                            [--report DIR] [--docs DIR [--readme PATH]] [--command TEXT]
 
 Loads the runs once (experiments.aggregate: broken folders are reported by name and skipped),
 then runs every script of paper_figures.FIGURES into DIR (default results/paper_figures/); a
 figure whose runs are absent is skipped with a one-line note. Also writes runs.csv (one row per
 run used) and problems.txt (the folders skipped, and why). Prints where every file went. Exit
+Then writes the study report, REPORT/index.html (paper_figures.report; default ROOT/report/).
 With --docs, also writes the measurement pages into DIR and the README's headline table
 (paper_figures.docs: each page stamped with the runs' commit, machine and command). Exit
 status: 0, or 1 when a script failed (the others still run), 2 on bad arguments.
@@ -21,7 +22,7 @@ from pathlib import Path
 
 from cloth.io.manifest import write_text_atomic
 
-from . import FIGURES, docs
+from . import FIGURES, docs, report
 from .common import REPO_ROOT, Skip, parse_and_load
 
 
@@ -30,6 +31,8 @@ def _docs_args(ap) -> None:
                     help="also write the measurement pages into DIR (docs/results) and the README's headline table")
     ap.add_argument("--readme", type=Path, default=REPO_ROOT / "README.md",
                     help="the README whose headline-table block --docs rewrites (default: the repository's)")
+    ap.add_argument("--report", type=Path, default=None, metavar="DIR",
+                    help="where the study report goes (index.html and its images; default: ROOT/report)")
     ap.add_argument("--command", default=None,
                     help="the command that ran the runs, for the pages' stamp (default: ROOT/command.txt, "
                          "which python -m experiments.paper writes)")
@@ -64,8 +67,9 @@ def main(argv=None) -> int:
             failed.append(name)
             print(f"{name}: FAILED\n{traceback.format_exc()}", file=sys.stderr)
     write_text_atomic(files[1], "".join(f"{p}\n" for p in runset.problems))  # with what the figures refused
+    command = args.command or _job_command(args.roots)
+    files.append(report.write_report(args.out, runset.runs, args.report or args.roots[0] / "report", command=command))
     if args.docs is not None:
-        command = args.command or _job_command(args.roots)
         page_command = "python -m paper_figures " + " ".join(sys.argv[1:] if argv is None else argv)
         files += docs.write_pages(args.out, runset.runs, args.docs, command=command, page_command=page_command)
         if docs.update_readme(args.readme, args.out, runset.runs, args.docs, command, page_command):
