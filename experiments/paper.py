@@ -61,6 +61,9 @@ SINGLE_SCENES = "karate,solo_dancer"
 CROWD_SCENE = "multiple_dancers"
 # Table 1's points in the main job: its fixed mesh (the baseline), then these (the preset's own).
 TABLE1_POINTS = ("adaptive", "viewdep", "viewdep_nofloor")
+# A still (camera view by view factor beside an outside view) of every single-character run every
+# this many frames, for the report's stills of each mode; I/O, so outside the timed sim_s.
+TABLE1_STILLS_EVERY = 50
 
 
 def study_command(study: str, out: Path, scale: str, jobs: int, frames: int | None, extra=(),
@@ -112,7 +115,7 @@ def study_parts(study: str, args, out: Path | None = None) -> list[tuple[str, li
     # quoted: the sweeper's own list (a bare comma would make the override itself a sweep)
     points = f"points='{','.join((baseline, *TABLE1_POINTS))}'"
     return [("table1", [f"hydra.sweeper.params.scene='{SINGLE_SCENES}'", f"repeats={args.repeats}",
-                        f"baseline={baseline}", points]),
+                        f"baseline={baseline}", points, f"output.stills_every={TABLE1_STILLS_EVERY}"]),
             ("table1_crowd", [f"hydra.sweeper.params.scene='{CROWD_SCENE}'", f"repeats={args.crowd_repeats}",
                               f"crowd_jobs={crowd_jobs}", f"baseline={baseline}", points])]
 

@@ -235,6 +235,7 @@ def test_main_job_warms_the_kernel_cache_before_any_study(tmp_path, monkeypatch)
     assert "+experiment=accuracy" in calls[1] and "hydra.launcher.n_jobs=1" in calls[1]
     assert "+experiment=table1" in calls[2] and "hydra.sweeper.params.scene='karate,solo_dancer'" in calls[2]
     assert "repeats=3" in calls[2] and f"hydra.sweep.dir={tmp_path / 'table1'}" in calls[2]
+    assert f"output.stills_every={paper.TABLE1_STILLS_EVERY}" in calls[2]  # the report's stills of each mode
     assert "+experiment=table1" in calls[3] and "hydra.sweeper.params.scene='multiple_dancers'" in calls[3]
     assert "repeats=1" in calls[3] and f"hydra.sweep.dir={tmp_path / 'table1_crowd'}" in calls[3]
     # the accuracy study failed: no equal-quality mesh, the preset's fixed mesh
