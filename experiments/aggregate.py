@@ -334,6 +334,8 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
         row[f"{name}_min{unit}"] = float(frames[col].min())
         row[f"{name}_max{unit}"] = float(frames[col].max())
         row[f"{name}_mean{unit}"] = float(frames[col].mean())
+    # step control (cloth.stepcontrol): steps undone and retried at half the step; NaN for runs recorded before it
+    row["steps_rejected"] = float(frames["steps_rejected"].sum()) if "steps_rejected" in frames.columns else math.nan
     row["drape_mesh"] = _text(cfg.get("drape_mesh"))
     for name in SCENE_MEASURES:
         v = frames[name].astype(float).tail(EQUILIBRIUM_FRAMES) if name in frames.columns else pd.Series(dtype=float)

@@ -71,7 +71,8 @@ def main(argv=None) -> int:
     files.append(report.write_report(args.out, runset.runs, args.report or args.roots[0] / "report", command=command))
     if args.docs is not None:
         page_command = "python -m paper_figures " + " ".join(sys.argv[1:] if argv is None else argv)
-        files += docs.write_pages(args.out, runset.runs, args.docs, command=command, page_command=page_command)
+        files += docs.write_pages(args.out, runset.runs, args.docs, command=command, page_command=page_command,
+                                  problems=runset.problems)
         if docs.update_readme(args.readme, args.out, runset.runs, args.docs, command, page_command):
             files.append(args.readme)
     print(f"\nfiles written ({len(files)}):")

@@ -83,6 +83,42 @@ def write_table(df: pd.DataFrame, out_dir, stem: str, title: str, floatfmt: str 
     return [csv, md]
 
 
+def place_labels(ax, xs, ys, texts, fontsize: float = 7, pad_px: float = 2.0, max_moves: int = 500) -> list:
+    """Label the points (xs, ys) of `ax` with `texts` so that no label is drawn over another: each
+    label starts just above right of its point and, taken from the lowest point up, moves up
+    past every label already placed that it would overlap, with a thin leader line back to its
+    point. Call it once the figure's layout is final (after tight_layout): it measures the labels
+    as drawn. Returns the annotations."""
+    fig = ax.figure
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    anchors = [ax.transData.transform((float(x), float(y))) for x, y in zip(xs, ys)]
+    order = sorted(range(len(anchors)), key=lambda i: (anchors[i][1], anchors[i][0]))
+    placed, anns = [], [None] * len(anchors)
+    for i in order:
+        dy = 3.0  # points above the point
+        ann = ax.annotate(str(texts[i]), (float(xs[i]), float(ys[i])), xytext=(4, dy), textcoords="offset points",
+                          fontsize=fontsize, annotation_clip=False,
+                          arrowprops=dict(arrowstyle="-", lw=0.4, color="0.5", shrinkA=0, shrinkB=2))
+        for _ in range(max_moves):
+            box = _text_box(ann, renderer)
+            clash = [b for b in placed if b.overlaps(box)]
+            if not clash:
+                break
+            dy += (max(b.y1 for b in clash) - box.y0 + pad_px) * 72.0 / fig.dpi
+            ann.set_position((4, dy))
+        placed.append(_text_box(ann, renderer))
+        anns[i] = ann
+    return anns
+
+
+def _text_box(ann, renderer):
+    """The label's own box, without its leader line (an Annotation's extent includes the line)."""
+    from matplotlib.text import Text  # noqa: PLC0415
+
+    return Text.get_window_extent(ann, renderer)
+
+
 def resolve_paper_timings(path) -> Path | None:
     """The paper-timings folder: `path` when given (AggregateError if it is not a folder), else
     DEFAULT_PAPER_TIMINGS when it exists, else None."""
@@ -208,5 +244,6 @@ def script_main(make, name: str, argv=None) -> int:
     return 0
 
 
-__all__ = ["RunSet", "Skip", "save_figure", "write_table", "read_paper_timings", "resolve_paper_timings",
+__all__ = ["RunSet", "Skip", "place_labels", "save_figure", "write_table", "read_paper_timings",
+           "resolve_paper_timings",
            "one_factor", "study_or_all", "parse_and_load", "script_main", "frame_times", "time_unit", "color"]

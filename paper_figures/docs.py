@@ -95,8 +95,21 @@ def _figures(figures_dir: Path, patterns) -> list[Path]:
     return found
 
 
+def runs_summary(runs: pd.DataFrame, problems=()) -> str:
+    """How the runs went: how many were used, the steps step control rejected (in how many runs)
+    and every folder left out with its reason (a diverged run among them)."""
+    rejected = runs["steps_rejected"] if "steps_rejected" in runs else pd.Series(dtype=float)
+    known = rejected.dropna()
+    text = (f"**Runs:** {len(runs)} used; step control rejected {int(known.sum())} step(s), in "
+            f"{int((known > 0).sum())} of the {len(known)} runs that record it.")
+    left = [str(p) for p in problems]
+    text += (" Left out: none." if not left else "\n\nLeft out (" + str(len(left)) + "):\n\n"
+             + "\n".join(f"- {p}" for p in left))
+    return text
+
+
 def write_pages(figures_dir, runs: pd.DataFrame, docs_dir, command: str | None = None,
-                page_command: str = "python -m paper_figures ROOT --docs DIR", log=print) -> list[Path]:
+                page_command: str = "python -m paper_figures ROOT --docs DIR", log=print, problems=()) -> list[Path]:
     """Write every page of PAGES whose tables or figures exist in figures_dir into docs_dir (images
     into docs_dir/IMAGE_DIR), and docs_dir/index.md; remove the generated files of an earlier run
     that this one does not write. Returns the files written."""
@@ -122,7 +135,8 @@ def write_pages(figures_dir, runs: pd.DataFrame, docs_dir, command: str | None =
         written.append(page)
         index.append(f"| [{title}]({stem}.md) | {what} |")
     idx = docs_dir / "index.md"
-    write_text_atomic(idx, "\n\n".join([GENERATED_MARK, "# Measurements", head, "| page | what it shows |\n"
+    write_text_atomic(idx, "\n\n".join([GENERATED_MARK, "# Measurements", head, runs_summary(runs, problems),
+                                        "| page | what it shows |\n"
                                         "| --- | --- |\n" + "\n".join(index)]) + "\n")
     written.append(idx)
     keep = {p.resolve() for p in written}

@@ -30,7 +30,7 @@ import pandas as pd
 from experiments.aggregate import MODES, baseline_for
 from experiments.sync import paired_difference_interval, read_windows
 
-from .common import MODE_MARKERS, MODE_NAMES, RunSet, Skip, color, save_figure, script_main, write_table
+from .common import MODE_MARKERS, MODE_NAMES, RunSet, Skip, color, place_labels, save_figure, script_main, write_table
 
 
 def pareto_front(time_s, error, lo=None, hi=None, better=None) -> np.ndarray:
@@ -155,9 +155,6 @@ def make(runset: RunSet, out, paper_timings=None, log=print) -> list[Path]:
                             fmt="none", ecolor=color(mode), elinewidth=0.8, capsize=2, zorder=2)
             ax.scatter(m["time_mean_s"], m["error_px"], color=color(mode), marker=MODE_MARKERS.get(mode, "D"),
                        s=36, label=MODE_NAMES.get(mode, mode), zorder=3)
-        for r in g.itertuples():
-            ax.annotate(r.variant, (r.time_mean_s, r.error_px), fontsize=7, xytext=(4, 3),
-                        textcoords="offset points")
         f = g[g["on_front"]].sort_values("time_mean_s")
         ax.scatter(f["time_mean_s"], f["error_px"], s=110, facecolors="none", edgecolors="k", lw=1.0, zorder=4)
         ax.step(f["time_mean_s"], f["error_px"], where="post", color="k", lw=1.0, ls="--", label="Pareto front",
@@ -172,6 +169,8 @@ def make(runset: RunSet, out, paper_timings=None, log=print) -> list[Path]:
         ax.axis("off")
     fig.suptitle("Accuracy against time per frame (lower left is better)")
     fig.tight_layout()
+    for ax, (_, g) in zip(axes.flat, groups):  # labels last: they are placed as the final layout draws them
+        place_labels(ax, g["time_mean_s"], g["error_px"], g["variant"])
     for r in table[table["equal_quality"]].itertuples():
         ad = table[(table["scene"] == r.scene) & (table["scale"] == r.scale) & (table["mode"] == "adaptive")]
         t_ad = float(ad["time_mean_s"].iloc[0]) if len(ad) else np.nan

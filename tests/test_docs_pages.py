@@ -75,3 +75,23 @@ def test_the_readme_headline_table_is_rewritten_between_its_markers_only(tmp_pat
 def test_a_readme_without_markers_is_left_as_it_is(tmp_path):
     rc, _, readme = _figures(tmp_path, "# no markers here\n")
     assert rc == 0 and readme.read_text() == "# no markers here\n"
+
+
+def test_the_index_says_how_the_runs_went_steps_rejected_and_runs_left_out(tmp_path):
+    from helpers import write_run
+
+    from paper_figures.__main__ import main as figures_main
+
+    root = tmp_path / "results"
+    _study_runs(root)
+    write_run(root / "t1" / "9_vd_rejected", "karate", "viewdep", [20] * 4, [12] * 4, [0.5] * 4,
+              variant="viewdep", extra_frames={"steps_rejected": [0, 2, 0, 1]})
+    write_run(root / "t1" / "8_diverged", "karate", "adaptive", [20] * 2, [12] * 2, [0.5] * 2, variant="adaptive",
+              status="diverged", frames_requested=4)
+    docs = tmp_path / "docs"
+    assert figures_main([str(root), "--out", str(tmp_path / "figures"), "--docs", str(docs),
+                         "--readme", str(tmp_path / "none.md")]) == 0
+    index = (docs / "index.md").read_text()
+    # only the new run records step control: 3 steps in 1 run of 1
+    assert "step control rejected 3 step(s), in 1 of the 1 runs that record it" in index, index
+    assert "Left out (1)" in index and "8_diverged" in index
