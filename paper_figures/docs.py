@@ -53,7 +53,8 @@ PAGES = {
 }
 
 
-def _manifests(runs: pd.DataFrame) -> list[dict]:
+def run_manifests(runs: pd.DataFrame) -> list[dict]:
+    """The manifest.json of every run that has a readable one."""
     out = []
     for p in runs.get("path", pd.Series(dtype=str)):
         try:
@@ -66,7 +67,7 @@ def _manifests(runs: pd.DataFrame) -> list[dict]:
 def stamp(runs: pd.DataFrame, command: str | None, page_command: str) -> str:
     """One paragraph: which code and machine measured the runs, when, by which command, and which
     command and commit wrote the page."""
-    manifests = _manifests(runs)
+    manifests = run_manifests(runs)
     codes = sorted(set(runs["code"].dropna().astype(str))) if "code" in runs else []
     times = sorted(m["timestamp_utc"] for m in manifests if m.get("timestamp_utc"))
     machines = sorted({f"{m.get('cpu_model', '?')}, {m.get('cpu_count', '?')} cores" for m in manifests})

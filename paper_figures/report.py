@@ -16,7 +16,6 @@ hold.
 from __future__ import annotations
 
 import html
-import json
 import os
 import shutil
 from datetime import UTC, datetime
@@ -25,6 +24,8 @@ from pathlib import Path
 import pandas as pd
 
 from cloth.io.manifest import code_version, write_text_atomic
+
+from .docs import run_manifests
 
 # (section id, title, [table CSV stems], [figure PNG patterns], what it shows)
 SECTIONS = (
@@ -108,12 +109,7 @@ def _recordings(runs: pd.DataFrame, out: Path) -> list[str]:
 
 
 def _settings(runs: pd.DataFrame, command: str | None) -> str:
-    manifests = []
-    for p in runs.get("path", pd.Series(dtype=str)):
-        try:
-            manifests.append(json.loads((Path(p) / "manifest.json").read_text()))
-        except (OSError, ValueError):
-            continue
+    manifests = run_manifests(runs)
     codes = sorted(set(runs["code"].dropna().astype(str))) if "code" in runs else []
     machines = sorted({f"{m.get('cpu_model', '?')}, {m.get('cpu_count', '?')} cores" for m in manifests})
     times = sorted(m["timestamp_utc"] for m in manifests if m.get("timestamp_utc"))
