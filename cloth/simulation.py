@@ -236,6 +236,9 @@ class Simulation:
                                                                           friction=scene.friction)
                                if self.stages.obstacle_ccd else None)
         self._inside_at_start = None  # free nodes inside an obstacle at the step's start (obstacle_ccd skips them)
+        # (n_nodes,) bool: free nodes a remesh made inside an obstacle, exempt from obstacle contact
+        # until they are out of it (the remesher sets it, :meth:`contact_exempt`, PASSING_DEPTH)
+        self.node_passing = np.zeros(scene.mesh.n_nodes, dtype=bool)
         self.frame = 0
         self.time = 0.0
         self.steps_taken = 0
@@ -261,6 +264,8 @@ class Simulation:
         for name, value in (("faces_compensated", 0), ("intersections_pending", 0), ("untangle_due", False),
                             ("_frame_dt", self.dt), ("_ticks", 0), ("_step_ticks", 2 ** MAX_STEP_HALVINGS)):
             self.__dict__.setdefault(name, value)
+        if "node_passing" not in state:  # a checkpoint of code before the exemption: none exempt
+            self.node_passing = np.zeros(self.scene.mesh.n_nodes, dtype=bool)
 
     @property
     def mesh(self):
@@ -276,6 +281,8 @@ class Simulation:
         mesh.update_rest_data(self.scene.material.density)
         self.pattern = SparsityPattern(mesh.n_nodes, element_families(mesh, self.terms))
         self.last_dv = None  # warm start of the solver; its size changes with the node count
+        if len(self.node_passing) != mesh.n_nodes:  # another mesh: the remesher carries the flags over
+            self.node_passing = np.zeros(mesh.n_nodes, dtype=bool)
         for term in self.terms:
             term.rebuild(mesh, self.pattern)
         if self.stages.buckling:
@@ -330,6 +337,7 @@ class Simulation:
         self.intersections_pending = 0
         self.untangle_due = True  # the state may cross (another run's, transferred to this mesh)
         self._inside_at_start = None
+        self.node_passing = np.zeros(scene.mesh.n_nodes, dtype=bool)
         self.rebuild()
         if self.stages.obstacle_contact:
             self.obstacle_set.set_time(t)
@@ -551,10 +559,11 @@ class Simulation:
     def _contact_constraints(self) -> ContactConstraints:
         """Free nodes near an obstacle now, with the nearest obstacle's normal and velocity."""
         mesh, scene = self.scene.mesh, self.scene
-        free = np.flatnonzero(~mesh.node_pinned)
+        self.release_passing()
+        free = np.flatnonzero(~self.contact_exempt())
         phi, normal, vel = self.obstacle_set.query(mesh.node_x[free])
         near = np.flatnonzero(phi < scene.thickness * (1.0 + CONTACT_BAND))
-        self._inside_at_start = free[phi < 0.0]
+        self._inside_at_start = np.union1d(free[phi < 0.0], np.flatnonzero(self.node_passing))
         return ContactConstraints(free[near], np.ascontiguousarray(normal[near]),
                                   np.ascontiguousarray(vel[near]), scene.friction)
 
@@ -597,11 +606,23 @@ class Simulation:
         for key in STRAIN_LIMIT_RECORD:
             stats[key] = max(stats[key], r[key])
 
+    def contact_exempt(self) -> np.ndarray:
+        """(n_nodes,) bool: the nodes obstacle contact leaves alone: pinned, or passing (a node a
+        remesh made inside an obstacle, cloth.remeshing.adaptive.PASSING_DEPTH)."""
+        return self.mesh.node_pinned | self.node_passing
+
+    def release_passing(self) -> None:
+        """Passing nodes that are out of every obstacle are in contact again."""
+        passing = np.flatnonzero(self.node_passing)
+        if passing.size:
+            phi = self.obstacle_set.query(self.mesh.node_x[passing])[0]
+            self.node_passing[passing[phi >= 0.0]] = False
+
     def _project_contacts(self, stats: dict) -> None:
         """Nodes out of the obstacles at the step's end, with friction (counts into `stats`)."""
         mesh, scene = self.scene.mesh, self.scene
         self.obstacle_set.set_time(self.time)
-        c = self.contact(mesh.node_x, mesh.node_v, mesh.node_pinned, self.obstacle_set,
+        c = self.contact(mesh.node_x, mesh.node_v, self.contact_exempt(), self.obstacle_set,
                          scene.thickness, scene.friction, self.dt)
         stats["contacts"] = max(stats["contacts"], int(c.get("contacts", 0)))
 

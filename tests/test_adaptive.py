@@ -233,6 +233,7 @@ def test_refining_coarse_cloth_on_the_sphere_alternates_pop_filter_and_push_out(
     each, and restricting the later rounds to the pushed nodes' surroundings changes nothing."""
     one = _refine_on_sphere(seed, monkeypatch, 1, -1)
     assert one["remesh_nodes_pushed_out"] > 100 and one["remesh_max_depth_m"] > 0.05  # the case is hard
+    assert one["remesh_nodes_passing"] == 0  # under the sphere's chords: pushed, none passes (PASSING_MIDDLE)
     full = _refine_on_sphere(seed, monkeypatch, 3, -1)
     restricted = _refine_on_sphere(seed, monkeypatch, 3, 2)
     assert full["pop_energy_after_j"] < ALTERNATION_GAIN * one["pop_energy_after_j"]
@@ -307,3 +308,69 @@ def test_the_pop_filter_s_inexact_newton_solves_end_where_exact_ones_do(monkeypa
             exact = popfilter_mod.pop_filter(*copy.deepcopy(args))
         assert exact["iterations"] > 0 and exact["energy_after_j"] < exact["energy_before_j"]
         assert inexact["energy_after_j"] == pytest.approx(exact["energy_after_j"], rel=POP_INEXACT_REL)
+
+
+# A leg (a vertical capsule, 4 cm radius, 20 cm long) through the middle of one edge of a coarse
+# sheet (0.3 m cells): the remesh's split of that edge puts a node on the leg's axis, 4 cm deep.
+LEG_RADIUS = 0.04
+LEG_AXIS = (0.15, 0.3)  # the midpoint of the edge from (0, 0.3) to (0.3, 0.3)
+# the sheet falls past the leg's lower end (0.14 m below the node) in about 0.17 s
+LEG_FRAMES = 6
+
+
+def _sheet_through_a_leg():
+    from helpers import COTTON, simulation_in_mode
+
+    from cloth.collision.obstacles import Capsule
+    from cloth.core.mesh import grid_mesh
+    from cloth.core.scene import Scene
+
+    mesh = grid_mesh(0.6, 0.6, 2, 2)
+    mesh.update_rest_data(COTTON.density)
+    leg = Capsule((*LEG_AXIS, -0.1), (*LEG_AXIS, 0.1), LEG_RADIUS)
+    scene = Scene("leg", mesh, COTTON, {"membrane", "bending", "gravity", "obstacles"}, frame_time=0.04,
+                  steps_per_frame=4, obstacles=[leg])
+    return simulation_in_mode(scene, "adaptive")
+
+
+def test_a_node_split_inside_a_thin_obstacle_passes_through_it_until_it_is_out():
+    """A coarse face through a leg (contact holds nodes, not faces): the split node made inside
+    it is not pushed to the nearest surface, which would hook the cloth around the leg, but
+    passes (cloth.remeshing.adaptive.mark_passing): contact leaves it alone while it is inside and
+    takes it back once it is out."""
+    from helpers import after_every_step
+
+    sim = _sheet_through_a_leg()
+    seen = []
+
+    def check(s):
+        phi = s.obstacle_set.query(s.mesh.node_x)[0]
+        free = ~s.mesh.node_pinned
+        # every node inside the leg passes (none was pushed or held by contact), and a node passes
+        # only while it was inside at the step's start
+        assert np.all(s.node_passing[free & (phi < -CONTACT_SLACK)])
+        seen.append(int(s.node_passing.sum()))
+
+    after_every_step(sim, check)
+    first = sim.advance_frame()
+    assert first["remesh_nodes_passing"] == 1 and first["remesh_nodes_pushed_out"] == 0
+    inside = sim.mesh.node_x[sim.node_passing][0]
+    assert np.hypot(*(inside[:2] - LEG_AXIS)) == pytest.approx(0.0, abs=1e-9)  # left on the axis
+    while sim.frame < LEG_FRAMES:
+        sim.advance_frame()
+    assert seen[0] == 1 and seen[-1] == 0  # released below the leg
+    phi = sim.obstacle_set.query(sim.mesh.node_x)[0]
+    assert phi.min() > 0.0
+
+
+def test_without_passing_the_split_node_is_pushed_out_of_the_leg(monkeypatch):
+    """The case above is one the exemption decides: with it off, the push-out moves the split
+    node to the leg's surface."""
+    import cloth.remeshing.adaptive
+
+    monkeypatch.setattr(cloth.remeshing.adaptive, "PASSING_DEPTH", float("inf"))
+    sim = _sheet_through_a_leg()
+    first = sim.advance_frame()
+    assert first["remesh_nodes_passing"] == 0 and first["remesh_nodes_pushed_out"] >= 1
+    # from the axis to the contact thickness off the surface
+    assert first["remesh_max_depth_m"] == pytest.approx(LEG_RADIUS + sim.scene.thickness, rel=1e-6)

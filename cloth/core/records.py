@@ -15,6 +15,9 @@ SIM_PHASES = ("sizing", "remesh", "physics", "solve", "collisions")
 # The remesh stage (NaN or 0 in frames without a remesh, and in mode=nonadaptive).
 REMESH_RECORD = {"remeshed": 0, "remesh_splits": 0, "remesh_collapses": 0, "remesh_flips": 0,
                  "remesh_nodes_pushed_out": 0, "remesh_max_depth_m": 0.0,
+                 # nodes exempt from obstacle contact after the remesh (made inside an obstacle, or still
+                 # inside since: cloth.remeshing.adaptive.mark_passing)
+                 "remesh_nodes_passing": 0,
                  "pop_energy_before_j": float("nan"), "pop_energy_after_j": float("nan"),
                  "pop_iterations": 0, "remesh_ccd_hits": 0, "remesh_guard_rounds": 0, "remesh_frozen_nodes": 0,
                  "remesh_guard_refused": 0,  # guard redos dropped: they made a face below the quality floor

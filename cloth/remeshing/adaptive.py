@@ -67,6 +67,22 @@ POP_PUSH_STRAIN = 0.01
 # tests/test_adaptive.py (seeds 0-5) the energy after the filter differs from the full rounds'
 # by less than 0.5 %, and at 12k faces a remesh costs 1.1 s instead of 2.3 s.
 POP_PUSH_RINGS = 2
+# A node a split made inside an obstacle passes through it until it is out (mark_passing) when
+# all three hold: it is deeper than PASSING_DEPTH contact thicknesses (within one the push-out
+# moves a node no more than a step's contact does); its edge's two nodes lie on opposite sides of
+# the obstacle (the mean of their obstacle normals, carried by the split, has a component below
+# PASSING_NORMAL along the normal at the new node); and the obstacle is thin there: PASSING_PROBE
+# node depths beyond the node, away from its nearest surface, the obstacle is less than
+# PASSING_PROBE node depths deep, i.e. it is less than 2 PASSING_PROBE + 1 node depths thick along
+# that line (a thick obstacle is 2 PASSING_PROBE + 1 depths deep there: a clear margin).
+# Measured: the four nodes in a dancer's leg (ten dancers without the contact floor, dancer 5,
+# frame 15) were 3.5-5.0 cm deep in 10-15 cm of leg (2.0-3.3 node depths beyond them: 0.0-4.5 cm
+# deep) with components 0.03-0.16; refining 0.4 m faces on the 0.25 m sphere (seeds 0-5,
+# tests/test_adaptive.py) made nodes up to 7.4 cm deep, components down to -0.2 (splits of splits
+# average normals over long arcs), but 0.5 m of sphere along the line: 6.8 node depths or more.
+PASSING_DEPTH = 1.0
+PASSING_NORMAL = 0.5
+PASSING_PROBE = 2.0
 
 
 def restore_momentum(mesh, momentum: np.ndarray) -> None:
@@ -112,8 +128,51 @@ def push_out_of_obstacles(sim) -> dict:
     mesh = sim.mesh
     sim.obstacle_set.set_time(sim.time)
     scratch_v = mesh.node_v.copy()  # the projection edits velocities; a remesh must not
-    return sim.contact(mesh.node_x, scratch_v, mesh.node_pinned, sim.obstacle_set, sim.scene.thickness, 0.0,
+    return sim.contact(mesh.node_x, scratch_v, sim.contact_exempt(), sim.obstacle_set, sim.scene.thickness, 0.0,
                        sim.scene.dt)
+
+
+def obstacle_normals(sim) -> np.ndarray:
+    """(n_nodes, 3): the nearest obstacle's outward normal at every node (zeros without
+    obstacle contact). A remesh carries them as node data, so that a split node holds the mean of
+    its edge's two nodes' normals (:func:`mark_passing`)."""
+    if sim.contact is None:
+        return np.zeros((sim.mesh.n_nodes, 3))
+    sim.obstacle_set.set_time(sim.time)
+    return sim.obstacle_set.query(sim.mesh.node_x)[1]
+
+
+def mark_passing(sim, node_origin: np.ndarray, old_passing: np.ndarray, carried_normal: np.ndarray) -> int:
+    """Set sim.node_passing for the remeshed mesh; return how many nodes pass.
+
+    A kept node keeps its flag. A node the remesh made (a split) lies on the old surface. Deep
+    inside an obstacle it is either under a chord of a curved obstacle (the nearest surface is the
+    right one, POP_PUSH_ROUNDS) or on an edge through a thin part of it (a coarse face through a
+    leg: contact holds nodes, not faces). Pushing the second kind to the nearest surface chooses a
+    side, often the far one, and hooks the cloth around the limb (the ten dancers without the
+    contact floor, dancer 5: four split nodes 3.5-5 cm inside a leg, pushed out, stretched faces 9
+    times in five frames and the run diverged). They are told apart by `carried_normal` (the mean
+    of the edge's nodes' obstacle normals, :func:`obstacle_normals`: the two sides) and by the
+    obstacle's thickness along the node's normal (PASSING_PROBE). Such a node passes: obstacle
+    contact leaves it alone until it is out (Simulation.release_passing), as it left the face it
+    was made on.
+    """
+    flags = np.zeros(sim.mesh.n_nodes, dtype=bool)
+    kept = node_origin >= 0
+    if len(old_passing):
+        flags[kept] = old_passing[node_origin[kept]]
+    made = np.flatnonzero(~kept & ~sim.mesh.node_pinned)
+    if sim.contact is not None and made.size:
+        sim.obstacle_set.set_time(sim.time)
+        x = sim.mesh.node_x[made]
+        phi, normal, _ = sim.obstacle_set.query(x)
+        across = np.einsum("ij,ij->i", carried_normal[made], normal) < PASSING_NORMAL
+        c = np.flatnonzero((phi < -PASSING_DEPTH * sim.scene.thickness) & across)
+        if c.size:  # the normal points out through the nearest surface, -phi away
+            beyond = sim.obstacle_set.query(x[c] + PASSING_PROBE * phi[c, None] * normal[c])[0]
+            flags[made[c[-beyond < PASSING_PROBE * -phi[c]]]] = True
+    sim.node_passing = flags
+    return int(flags.sum())
 
 
 def collision_free_motion(sim, x_from: np.ndarray) -> int:
@@ -228,7 +287,7 @@ class AdaptiveRemesher:
         initial = sim.frame == 0
         internal = [t for t in sim.terms if t.name in INTERNAL_TERMS]
         use_pop = self.pop is not None and not initial and bool(internal) and self.pop.iterations > 0
-        # per-node data a split averages: x, v, internal force per unit mass, handle anchor
+        # per-node data a split averages: x, v, internal force per unit mass, handle anchor, obstacle normal
         handle_id = np.full(mesh.n_nodes, -1, dtype=np.int64)
         anchor = np.zeros((mesh.n_nodes, 3))
         for i, h in enumerate(sim.scene.handles):
@@ -240,17 +299,19 @@ class AdaptiveRemesher:
         if use_pop:  # internal forces of the old mesh, per unit mass, carried onto the new nodes
             a_int = internal_forces(mesh, internal, sim.pattern) / mesh.node_m[:, None]
         momentum = mesh.node_m @ mesh.node_v
-        data = np.hstack([mesh.node_x, mesh.node_v, a_int, anchor])
+        data = np.hstack([mesh.node_x, mesh.node_v, a_int, anchor, obstacle_normals(sim)])
         result = remesh(mesh, vert_M, data, handle_id, self.params)
         if sim.self_collision is not None and result.changed:
             result = self._avoid_crossings(mesh, vert_M, data, handle_id, result, stats)
         stats.update(remeshed=1, remesh_splits=result.splits, remesh_collapses=result.collapses,
                      remesh_flips=result.flips)
         if not result.changed:
+            stats["remesh_nodes_passing"] = int(sim.node_passing.sum())
             timings["remesh"] += time.perf_counter() - t1
             return False
         new = result.mesh
         nd = result.node_data
+        old_passing = sim.node_passing
         sim.scene.mesh = new
         for i, h in enumerate(sim.scene.handles):
             sel = np.flatnonzero(result.node_handle == i)
@@ -260,6 +321,7 @@ class AdaptiveRemesher:
         sim.rebuild()
         restore_momentum(new, momentum)
         x_topo = new.node_x.copy()  # the remeshed surface: the old one, re-triangulated
+        stats["remesh_nodes_passing"] = mark_passing(sim, result.node_origin, old_passing, nd[:, 12:15])
         pushed = push_out_of_obstacles(sim)
         stats.update(remesh_nodes_pushed_out=pushed["contacts"], remesh_max_depth_m=pushed["max_depth_m"])
         if use_pop:

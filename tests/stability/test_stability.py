@@ -21,7 +21,10 @@ QUALITY_MIN. The cases:
 - thin_garment: solo_dancer's skirt from cells 12x longer across than around, adaptive, with
   self-collision;
 - dancer_nu_out_0.3: the standing dancer, camera on her torso, skirt coarsened to nu_out = 0.3,
-  80 frames (it diverged at frame 59 in the main job before step control and the bending fade).
+  80 frames (it diverged at frame 59 in the main job before step control and the bending fade);
+- crowd_dancer_no_floor: dancer 5 of the ten dancers, viewdep without the contact floor, 40 frames
+  (it diverged at frame 21 in the main job at 2a4c163, when split nodes made inside a leg were
+  pushed through it).
 
 Each for the seeds SEEDS. karate_no_floor (150 frames) is in `python -m experiments.stability --long`.
 The larger versions (scale=paper, 100 frames) are `python -m experiments.stability`.
