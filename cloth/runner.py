@@ -101,6 +101,19 @@ def summarize(frames: pd.DataFrame) -> dict:
     return out
 
 
+def count_diverged_frame(summary: dict, exc: SimulationDiverged) -> None:
+    """Add the steps rejected in the frame a run diverged in (it has no record) to `summary`'s
+    totals (:func:`summarize`)."""
+    n = int(exc.rejected.get("steps_rejected", 0))
+    summary["steps_rejected_total"] = summary.get("steps_rejected_total", 0) + n
+    for check in STEP_CHECKS:
+        key = f"steps_rejected_{check}_total"
+        summary[key] = summary.get(key, 0) + int(exc.rejected.get(f"steps_rejected_{check}", 0))
+    if n:
+        summary["frames_with_rejected_steps"] = [*summary.get("frames_with_rejected_steps", []), int(exc.frame)]
+    summary["dt_min_s"] = min(summary.get("dt_min_s", float("inf")), exc.rejected.get("dt_min_s", float("inf")))
+
+
 def rejected_steps_note(summary: dict) -> str | None:
     """The run's note when step control took any step again at half its length (None if none)."""
     n = summary.get("steps_rejected_total", 0)
@@ -361,6 +374,8 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
         summary = {"status": status, "message": message, "scene": scene.name, "notes": list(scene.notes),
                    "stages": sim.stages.names(), "solver_method": resolve_method(sim.solver.method),
                    "frames_requested": int(n_frames), **summarize(frames)}
+        if isinstance(error, SimulationDiverged) and error.rejected:
+            count_diverged_frame(summary, error)
         capped = capped_solves_note(summary, sim.solver.max_iterations)
         if capped is not None:  # never silent: the summary's notes, which the run prints
             summary["notes"].append(capped)

@@ -108,7 +108,14 @@ KE_FLOOR_SPEED_M_S = 1.0
 
 class SimulationDiverged(RuntimeError):
     """A step failed its checks (non-finite state, a node over the speed limit, a jump of the
-    kinetic energy) at every halving of its length that step control allows."""
+    kinetic energy) at every halving of its length that step control allows. `frame` is the frame
+    it happened in and `rejected` what step control did in it, by STEP_RECORD column (that frame
+    has no record: the run's summary counts it from here; dt_min_s is the last step tried)."""
+
+    def __init__(self, message: str, frame: int | None = None, rejected: dict | None = None):
+        super().__init__(message)
+        self.frame = frame
+        self.rejected = dict(rejected or {})
 
 
 @dataclass(frozen=True)
@@ -436,7 +443,9 @@ class Simulation:
                 raise SimulationDiverged(
                     f"frame {self.frame + 1}: {self._failure_message(failure)} at t = {self.time:.4f} s, in a step "
                     f"of {self.dt:.3g} s taken again {MAX_STEP_HALVINGS} times at half the length "
-                    f"(MAX_STEP_HALVINGS)")
+                    f"(MAX_STEP_HALVINGS)", frame=self.frame + 1,
+                    rejected={**{k: stats[k] for k in STEP_RECORD if k.startswith("steps_rejected")},
+                              "dt_min_s": self.dt})
             self._restore_step_state(saved)
             for _ in range(2):
                 self._controlled_step(halvings + 1, timings, stats)

@@ -98,6 +98,12 @@ def test_a_step_that_explodes_at_every_length_ends_the_run_after_the_last_halvin
     assert list(frames["frame"]) == list(range(1, BAD_FRAME + 1))  # the frames before it are kept
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["status"] == "diverged" and f"frame {BAD_FRAME + 1}" in summary["message"]
+    # the diverged frame has no record; its rejections (one per length tried) are in the totals
+    assert summary["steps_rejected_total"] == MAX_STEP_HALVINGS + 1
+    assert summary[f"steps_rejected_{check}_total"] == MAX_STEP_HALVINGS + 1
+    assert summary["frames_with_rejected_steps"] == [BAD_FRAME + 1]
+    assert summary["dt_min_s"] == pytest.approx(h / 2 ** MAX_STEP_HALVINGS, rel=1e-12)
+    assert any("taken again at half the length" in n for n in summary["notes"])
 
 
 def _start_frame(sim):
