@@ -30,7 +30,7 @@ COPLANAR_REL = 1e-14
 COPLANAR_SAMPLES = 17
 # Two directions whose cross product is below this (|u x v|^2 / (|u|^2 |v|^2)) are parallel: they
 # give no separating axis (a degenerate face, parallel edges), and the slab rejection skips them.
-PARALLEL_SIN2 = 1e-12
+AXIS_PARALLEL_SIN2 = 1e-12
 
 
 @njit(cache=True, inline="always")
@@ -220,7 +220,7 @@ def _unit_cross(u0, u1, u2, v0, v1, v2):
     n0, n1, n2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
     L = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
     scale = (u0 * u0 + u1 * u1 + u2 * u2) * (v0 * v0 + v1 * v1 + v2 * v2)
-    if not L * L > PARALLEL_SIN2 * scale:
+    if not L * L > AXIS_PARALLEL_SIN2 * scale:
         return 0.0, 0.0, 0.0, False
     return n0 / L, n1 / L, n2 / L, True
 

@@ -38,12 +38,12 @@ DEGENERATE_FRACTION = 1e-6
 # mesh a few thicknesses fine, a node and a face two rings away lie closer than the thickness
 # in the sheet's own plane, and pushing them apart stretched the cloth (ARCSim's sphere.json at
 # its own sizes: Green strains of 2 to 9 by the pins, against ARCSim's 0.7). For the same reason
-# an edge-edge pair of (nearly) parallel edges, sin^2 of their angle below PARALLEL_SIN2, is left
+# an edge-edge pair of (nearly) parallel edges, sin^2 of their angle below EDGE_PARALLEL_SIN2, is left
 # out: their closest points are not unique and may lie side by side in the sheet. Neighbouring
 # pairs cover what these leave out, and CCD still sees every crossing. Pairs with an obstacle
 # node keep the closest-point distance (a body's tip or ridge must push the cloth).
 INTERIOR_TOLERANCE = 1e-6
-PARALLEL_SIN2 = 1e-6
+EDGE_PARALLEL_SIN2 = 1e-6
 
 
 @njit(cache=True)
@@ -161,13 +161,13 @@ def _projects_inside(p, a, b, c):
 @njit(cache=True)
 def _across(x, p, q, P, Q, w):
     """Whether the edge-edge pair's closest points lie inside both edges (weights w of
-    `_ee_geometry`) and the edges are not parallel (PARALLEL_SIN2)."""
+    `_ee_geometry`) and the edges are not parallel (EDGE_PARALLEL_SIN2)."""
     if not (0.0 < w[1] < 1.0 and 0.0 < -w[3] < 1.0):
         return False
     e1 = x[q] - x[p]
     e2 = x[Q] - x[P]
     c = np.cross(e1, e2)
-    return np.dot(c, c) >= PARALLEL_SIN2 * np.dot(e1, e1) * np.dot(e2, e2)
+    return np.dot(c, c) >= EDGE_PARALLEL_SIN2 * np.dot(e1, e1) * np.dot(e2, e2)
 
 
 @njit(cache=True)

@@ -112,27 +112,6 @@ def bending_stiffness(curvature, direction, bending):
 
 
 @njit(cache=True, parallel=True)
-def face_stretching_stiffness(node_x, face_nodes, face_Dm_inv, samples, out):
-    """(F, 4) stiffness of every face at its Green strain now, N/m (into out)."""
-    for f in prange(face_nodes.shape[0]):
-        x0, x1, x2 = node_x[face_nodes[f, 0]], node_x[face_nodes[f, 1]], node_x[face_nodes[f, 2]]
-        B = face_Dm_inv[f]
-        G00 = G01 = G11 = 0.0
-        Fu = np.empty(3)
-        Fv = np.empty(3)
-        for i in range(3):
-            d1 = x1[i] - x0[i]
-            d2 = x2[i] - x0[i]
-            Fu[i] = d1 * B[0, 0] + d2 * B[1, 0]
-            Fv[i] = d1 * B[0, 1] + d2 * B[1, 1]
-        for i in range(3):
-            G00 += Fu[i] * Fu[i]
-            G01 += Fu[i] * Fv[i]
-            G11 += Fv[i] * Fv[i]
-        stretching_stiffness(0.5 * (G00 - 1.0), 0.5 * G01, 0.5 * (G11 - 1.0), samples, out[f])
-
-
-@njit(cache=True, parallel=True)
 def hinge_stiffness(node_x, edge_stencil, edge_length, edge_area_sum, edge_direction_ab, bending, out_ke, out_weight):
     """Per hinge (E,): ARCSim's stiffness ke (N m) at its curvature now, and its weight
     w = ke l^2 / (4 (A_0 + A_1)) in W = 1/2 w (theta - theta_rest)^2 (N m).
