@@ -130,6 +130,35 @@ def test_every_point_of_every_preset_validates(experiment):
             build_simulation(cfg, character=0 if cfg.scene.name == "multiple_dancers" else None)
 
 
+# Frames of every distinct run of every preset in the slow check below: enough for a remesh, the
+# view-dependent sizing and a step of each stage the run declares.
+PRESET_FRAMES = 2
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("experiment", EXPERIMENTS)
+def test_every_preset_runs(experiment):
+    """Every distinct point of every preset (scene and point, at scale=small, seed 0) simulates
+    PRESET_FRAMES frames: finite, the frames counted, no step control giving up (a crowd runs its
+    first character, as a crowd run does for each)."""
+    import numpy as np
+
+    from experiments.build import build_simulation
+
+    seen = set()
+    for overrides in _runs(experiment):
+        cfg = compose_config(*overrides, "scale=small")
+        key = (cfg.scene.name, overrides[-1])
+        if key in seen:
+            continue
+        seen.add(key)
+        sim = build_simulation(cfg, character=0 if cfg.scene.name == "multiple_dancers" else None)[0]
+        for _ in range(PRESET_FRAMES):
+            record = sim.advance_frame()
+        assert sim.frame == PRESET_FRAMES and np.isfinite(sim.mesh.node_x).all(), key
+        assert record["faces"] > 0 and np.isfinite(record["kinetic_energy_j"]), key
+
+
 def test_sweep_points_set_what_they_name():
     def cfg(point):
         return compose_config("scene=solo_dancer", f"+point={point}")
