@@ -28,12 +28,29 @@ DESIGN.md section 1, one named stage per line::
     per-frame record
 
 The three modes share all of this; only the remesh stage (its sizing field) differs.
+
+Where each part lives. This module holds the frame loop: :class:`Simulation` (``advance_frame``,
+``step`` and the stages it calls, one method each) and the remesh stage's interface
+(:class:`Remesher`). The rest is one module per concept, each a part of :class:`Simulation`:
+
+    cloth.stages       the stage plan (Stages, plan_stages) and the force terms of the implicit
+                       step (build_force_terms, FORCE_EFFECTS)
+    cloth.stepcontrol  step control (the StepControl mixin: a step checked, undone and halved;
+                       MAX_STEP_HALVINGS, KE_JUMP_FACTOR, KE_FLOOR_SPEED_M_S, SimulationDiverged)
+    cloth.restart      the restart protocol (the Restart mixin: restart_from)
+    cloth.framerecord  the per-frame record (the FrameRecord mixin: state_record, view_counts,
+                       compressive_energy)
+
+Their public names are re-exported here (``from cloth.simulation import plan_stages`` keeps
+working), and :class:`Simulation` stays defined here: checkpoints pickle it as
+``cloth.simulation.Simulation``. The stage implementations the frame loop calls (contact,
+collisions, untangling, buckling factors, strain limiting) are looked up in this module's
+namespace when they are called, so that a test can replace them here.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -46,8 +63,6 @@ from cloth.collision.selfcollision import (
     resolve_self_collisions,
 )
 from cloth.collision.untangle import untangle
-from cloth.core.measured import MeasuredMaterial
-from cloth.core.mesh import Mesh
 from cloth.core.records import (
     COLLISION_RECORD,
     PHASES,
@@ -58,147 +73,29 @@ from cloth.core.records import (
     VIEW_RECORD,
 )
 from cloth.core.scene import Scene
-from cloth.core.transfer import transfer_node_values
+from cloth.framerecord import FrameRecord
 from cloth.physics.assembly import SparsityPattern
-from cloth.physics.buckling import compressive_energy, face_alpha
-from cloth.physics.forces import (
-    Bending,
-    ForceTerm,
-    Gravity,
-    HandleSprings,
-    MeasuredBending,
-    MeasuredMembrane,
-    Membrane,
-    Wind,
-    element_families,
-)
+from cloth.physics.buckling import face_alpha
+from cloth.physics.forces import element_families
 from cloth.physics.integrator import ContactConstraints, implicit_euler_step
 from cloth.physics.linsolve import SolverOptions, solve_capped
-from cloth.physics.measured_membrane import measured_compressive_energy
 from cloth.physics.strainlimiting import limit_strain
-from cloth.view.factors import face_geometry, face_view_data
+from cloth.restart import Restart
+
+# Re-exported: the stage plan and step control, defined in their own modules (module docstring).
+from cloth.stages import FORCE_EFFECTS as FORCE_EFFECTS
+from cloth.stages import Stages as Stages
+from cloth.stages import build_force_terms, plan_stages
+from cloth.stepcontrol import KE_FLOOR_SPEED_M_S as KE_FLOOR_SPEED_M_S
+from cloth.stepcontrol import KE_JUMP_FACTOR as KE_JUMP_FACTOR
+from cloth.stepcontrol import MAX_STEP_HALVINGS, StepControl
+from cloth.stepcontrol import SimulationDiverged as SimulationDiverged
 
 # A free node within (1 + CONTACT_BAND) x thickness of an obstacle at the start of a step is a
 # contact candidate for the solve (projection leaves resting nodes at exactly the thickness).
 CONTACT_BAND = 0.5
 # Bound of the contour-minimisation iterations after a remesh (the record says what is left).
 UNTANGLE_ITERATIONS = 30
-# Force terms in the order they are assembled (each present only when its effect is declared).
-FORCE_EFFECTS = ("membrane", "bending", "gravity", "wind")
-
-
-# Step control. A step whose result fails a check (STEP_CHECKS) is undone (the state before it
-# restored) and taken again as two steps of half its length, each checked the same way, at most
-# MAX_STEP_HALVINGS times in a row: down to a step of dt / 16. A step that still fails then ends
-# the run (SimulationDiverged), except a collision pass that gave up: at the finest step it is
-# accepted and the cloth untangled before the next step, as without step control.
-MAX_STEP_HALVINGS = 4
-# A step may not raise the free nodes' kinetic energy above KE_JUMP_FACTOR times the energy the
-# cloth had to move with at its start: its kinetic energy, its elastic (membrane and bending)
-# energy, which a step may release into motion, and a floor, its mass moving at
-# KE_FLOOR_SPEED_M_S (so that a cloth at rest may start to fall and a body may strike it).
-# Implicit Euler dissipates: gravity, the handles and the obstacles are the only sources, and none
-# multiplies that energy tenfold in a step of a frame or less; one bad hinge did (issue 32: a
-# dancer's bending gradient went from 0.42 to 147 N in one step, and the cloth to 595 m/s within
-# the frame). Without the elastic energy in the budget, a stiff sheet (100 x cotton, the stability
-# suite's stiff_material) releasing 47 J of membrane energy into 1.7 J of motion was a jump.
-KE_JUMP_FACTOR = 10.0
-KE_FLOOR_SPEED_M_S = 1.0
-
-
-class SimulationDiverged(RuntimeError):
-    """A step failed its checks (non-finite state, a node over the speed limit, a jump of the
-    kinetic energy) at every halving of its length that step control allows. `frame` is the frame
-    it happened in and `rejected` what step control did in it, by STEP_RECORD column (that frame
-    has no record: the run's summary counts it from here; dt_min_s is the last step tried)."""
-
-    def __init__(self, message: str, frame: int | None = None, rejected: dict | None = None):
-        super().__init__(message)
-        self.frame = frame
-        self.rejected = dict(rejected or {})
-
-
-@dataclass(frozen=True)
-class Stages:
-    """The stages a simulation runs, decided once (:func:`plan_stages`). False: never called."""
-
-    forces: tuple = ()  # force terms assembled in the implicit step, by effect name (FORCE_EFFECTS), and
-    # 'handle_springs' when a handle fades (its springs after end_time)
-    damping: bool = False  # Rayleigh damping in the implicit step ('damping')
-    remesh: bool = False  # the mode's remesh stage (mode=adaptive, viewdep)
-    untangle: bool = False  # remove crossings (self_collision, mesh obstacles): start, remesh, given-up collisions
-    buckling: bool = False  # compression factors of the out-of-frustum faces (the mode's buckling)
-    obstacle_contact: bool = False  # node contact with every obstacle, in the solve and after it ('obstacles')
-    obstacle_ccd: bool = False  # cloth against triangle-mesh obstacles: proximity, CCD, impact zones
-    self_collision: bool = False  # cloth against itself: proximity, CCD, impact zones ('self_collision')
-    strain_limiting: bool = False  # principal stretches into the material's limits after each step
-
-    def names(self) -> list[str]:
-        """The planned stages, by name (force terms as 'force:<effect>'), for records and tests."""
-        out = [f"force:{f}" for f in self.forces]
-        return out + [f.name for f in fields(self) if f.name != "forces" and getattr(self, f.name)]
-
-    def without(self, *names: str) -> Stages:
-        """This plan with the named stages switched off (an ablation; a test of a stage's effect)."""
-        switches = [f.name for f in fields(self) if f.name != "forces"]
-        unknown = set(names) - set(switches)
-        if unknown:
-            raise ValueError(f"unknown stage(s) {sorted(unknown)}; stages that switch: {switches}")
-        return replace(self, **{name: False for name in names})
-
-
-def _fading(scene: Scene) -> bool:
-    """Whether a handle of the scene fades (its springs are then a force term of the step)."""
-    return any(h.fade_time > 0 for h in scene.handles)
-
-
-def plan_stages(scene: Scene, remesher=None, buckling=None) -> Stages:
-    """The one place where what a scene declares and what a mode asks for become stages.
-
-    Scene effects: membrane, bending, gravity, wind (force terms), damping, obstacles (node
-    contact with every obstacle; with triangle-mesh obstacles and a thickness > 0, also their
-    triangles in the step's collision pass), self_collision, strain_limiting; untangling wherever
-    crossings can arise (self_collision or mesh obstacles: a start state, a remesh). Mode: a
-    remesher (remesh), buckling parameters (buckling).
-    """
-    effects = scene.effects
-    obstacles = "obstacles" in effects
-    meshes = obstacles and bool(mesh_obstacles(scene.obstacles))
-    self_collision = "self_collision" in effects
-    remesh = remesher is not None
-    return Stages(
-        forces=tuple(e for e in FORCE_EFFECTS if e in effects) + (("handle_springs",) if _fading(scene) else ()),
-        damping="damping" in effects,
-        remesh=remesh,
-        untangle=self_collision or meshes,
-        buckling=buckling is not None,
-        obstacle_contact=obstacles,
-        obstacle_ccd=meshes and scene.thickness > 0,
-        self_collision=self_collision,
-        strain_limiting="strain_limiting" in effects,
-    )
-
-
-def build_force_terms(scene: Scene) -> list[ForceTerm]:
-    """The force terms of the scene's declared effects, in a fixed order (built once).
-
-    The material's type chooses the elasticity: a Material gets the isotropic StVK membrane and
-    one bending stiffness, a MeasuredMaterial ARCSim's measured membrane and per-hinge bending."""
-    terms: list[ForceTerm] = []
-    material = scene.material
-    measured = isinstance(material, MeasuredMaterial)
-    if "membrane" in scene.effects:
-        terms.append(MeasuredMembrane(material) if measured else Membrane(*material.lame()))
-    if "bending" in scene.effects:
-        terms.append(MeasuredBending(material) if measured else Bending(material.bending_stiffness))
-    if "gravity" in scene.effects:
-        terms.append(Gravity(scene.gravity))
-    if "wind" in scene.effects:
-        w = scene.wind
-        terms.append(Wind(w.velocity, w.drag, w.gust_amplitude, w.gust_frequency, w.density, w.drag_tangential))
-    if _fading(scene):
-        terms.append(HandleSprings(scene.handles))
-    return terms
 
 
 class Remesher:
@@ -213,7 +110,11 @@ class Remesher:
         raise NotImplementedError
 
 
-class Simulation:
+class Simulation(StepControl, Restart, FrameRecord):
+    """The frame loop (module docstring); step control, the restart protocol and the per-frame
+    record are its mixins, each in a module of its own (cloth.stepcontrol, cloth.restart,
+    cloth.framerecord)."""
+
     def __init__(self, scene: Scene, solver: SolverOptions | None = None,
                  remesher: Remesher | None = None, max_speed: float = 100.0, buckling=None):
         """`buckling` (cloth.physics.buckling.BucklingParams or None): buckling compensation on the
@@ -295,81 +196,6 @@ class Simulation:
         if self.stages.buckling:
             self.update_buckling()
 
-    # ---- restarting from another run's state -------------------------------------------------
-    def restart_from(self, state: dict) -> None:
-        """Continue from a saved state of a run of the same scene (cloth.io.states with restart data,
-        possibly of another mode or resolution) at its frame: the re-synchronised error starts
-        every mode from the reference's state.
-
-        The scene's time-dependent parts (body, handles' motions, camera) are functions of time
-        and are set to the state's time. The cloth: a remeshing mode takes the state's mesh as it
-        is (its topology, material coordinates, positions, velocities, pins and handle anchors)
-        and remeshes it with its own sizing on the next frame; a fixed mesh keeps its own
-        topology and takes positions and velocities interpolated at its nodes' material points
-        (cloth.core.transfer), its handle nodes placed on their own motions. The solver's warm
-        start and the crossings pending from an earlier untangling start afresh. ValueError
-        names a state that does not fit (another frame time, other handles).
-        """
-        scene = self.scene
-        frame = int(state["frame"])
-        t = frame * scene.frame_time
-        if not abs(t - float(state["time"])) <= 1e-9 * max(1.0, abs(t)):
-            raise ValueError(f"state of frame {frame} is at t = {state['time']} s, but frame {frame} of this "
-                             f"scene is at {t} s (another frame time)")
-        handle_ids = np.asarray(state["node_handle"])
-        if handle_ids.size and int(handle_ids.max()) >= len(scene.handles):
-            raise ValueError(f"the state has {int(handle_ids.max()) + 1} handles, this scene {len(scene.handles)}")
-        if self.remesher is not None:
-            scene.mesh = Mesh(node_x=np.array(state["node_x"], dtype=np.float64),
-                              node_v=np.array(state["node_v"], dtype=np.float64),
-                              node_pinned=np.array(state["node_pinned"], dtype=bool),
-                              vert_u=np.array(state["vert_u"], dtype=np.float64),
-                              vert_node=state["vert_node"], face_verts=state["face_verts"],
-                              density=scene.material.density)
-            for i, h in enumerate(scene.handles):
-                h.nodes = np.flatnonzero(handle_ids == i)
-                h.local = np.array(state["handle_local"][h.nodes], dtype=np.float64)
-                h.restore(t)
-        else:
-            mesh = scene.mesh
-            values, _ = transfer_node_values(state, mesh.vert_u, mesh.vert_node, mesh.face_verts)
-            mesh.node_x[:] = values["node_x"]
-            mesh.node_v[:] = values["node_v"]
-            for i, h in enumerate(scene.handles):
-                self._restore_fixed_handle(h, np.flatnonzero(handle_ids == i), state["handle_local"], t)
-        self.frame, self.time = frame, t
-        self.steps_taken = frame * scene.steps_per_frame  # as if every frame took the scene's steps
-        self.dt, self._substep = scene.dt, 0
-        self._frame_dt, self._ticks, self._step_ticks = scene.dt, 0, 2 ** MAX_STEP_HALVINGS
-        self.intersections_pending = 0
-        self.untangle_due = True  # the state may cross (another run's, transferred to this mesh)
-        self._inside_at_start = None
-        self.node_passing = np.zeros(scene.mesh.n_nodes, dtype=bool)
-        self.rebuild()
-        if self.stages.obstacle_contact:
-            self.obstacle_set.set_time(t)
-            for ob in self.mesh_obstacles:
-                ob.set_time(t)
-
-    def _restore_fixed_handle(self, h, state_nodes: np.ndarray, state_local: np.ndarray, t: float) -> None:
-        """A fixed mesh's handle at resumed time t: its phase, its anchor (the state's when the state
-        holds the same nodes, else taken where the nodes are now) and its nodes' pins and positions."""
-        mesh = self.scene.mesh
-        h.restore(t)
-        if h.state == "released":
-            mesh.node_pinned[h.nodes] = False
-            h.nodes, h.local = np.zeros(0, dtype=np.int64), np.zeros((0, 3))
-            return
-        mesh.node_pinned[h.nodes] = h.pinned
-        if h.state == "waiting":
-            return
-        if np.array_equal(state_nodes, h.nodes):
-            h.local = np.array(state_local[h.nodes], dtype=np.float64)
-        else:
-            h.attach(mesh.node_x, t)
-        if h.pinned:
-            mesh.node_x[h.nodes] = h.targets(t)
-
     # ---- the frame -------------------------------------------------------------------------
     def advance_frame(self) -> dict:
         """Simulate one frame; return its record (one row of frames.parquet, without I/O time).
@@ -422,100 +248,6 @@ class Simulation:
                 _, v = ob.state_at(self.time + a * scene.frame_time)
                 speed = max(speed, float(np.sqrt((v * v).sum(axis=1).max())) if v.size else 0.0)
         return max(int(np.ceil(speed * scene.frame_time / (scene.obstacle_step * scene.thickness))), 1)
-
-    def _controlled_step(self, halvings: int, timings: dict, stats: dict) -> None:
-        """One step of the frame's step / 2**halvings under step control: taken, checked
-        (:meth:`step_failure`) and, if it fails, undone and taken as two steps of half the length.
-        Counts the rejections into `stats` (steps_rejected, steps_rejected_<check>, dt_min_s)."""
-        self.dt = self._frame_dt / 2 ** halvings
-        self._step_ticks = 2 ** (MAX_STEP_HALVINGS - halvings)
-        for handle in self.scene.handles:  # take hold, pin, let a spring fade, let go (Handle.update) at the
-            # step's start; idempotent, so a step taken again finds the phase it had
-            handle.update(self.mesh.node_x, self.mesh.node_pinned, self.time)
-        saved = self._save_step_state()
-        self.step(timings, stats)
-        failure = self.step_failure(saved["kinetic_energy"])
-        finest = halvings == MAX_STEP_HALVINGS
-        if failure is not None and not (finest and failure == "collisions"):
-            stats["steps_rejected"] += 1
-            stats[f"steps_rejected_{failure}"] += 1
-            if finest:
-                raise SimulationDiverged(
-                    f"frame {self.frame + 1}: {self._failure_message(failure)} at t = {self.time:.4f} s, in a step "
-                    f"of {self.dt:.3g} s taken again {MAX_STEP_HALVINGS} times at half the length "
-                    f"(MAX_STEP_HALVINGS)", frame=self.frame + 1,
-                    rejected={**{k: stats[k] for k in STEP_RECORD if k.startswith("steps_rejected")},
-                              "dt_min_s": self.dt})
-            self._restore_step_state(saved)
-            for _ in range(2):
-                self._controlled_step(halvings + 1, timings, stats)
-            return
-        self._substep += 1
-        stats["dt_min_s"] = min(stats["dt_min_s"], self.dt)
-        if self.stages.untangle and self._step_gave_up:
-            # a collision pass gave up at the finest step: the cloth may now cross itself or a
-            # body. Untangled before the next step, whose collision pass needs a clean start (a
-            # fixed dress kept 12 such crossings for 165 frames; untangled only at the next
-            # frame's start, frames 335-337 of its dance still ended crossing)
-            self._timed(timings, "collisions", self.untangle, stats)
-
-    def _free_kinetic_energy(self) -> tuple[float, float]:
-        """(kinetic energy of the free nodes in J, their mass in kg)."""
-        mesh = self.scene.mesh
-        free = ~mesh.node_pinned
-        m = mesh.node_m[free]
-        v = mesh.node_v[free]
-        return float(0.5 * np.sum(m * np.einsum("ij,ij->i", v, v))), float(m.sum())
-
-    def _save_step_state(self) -> dict:
-        """What a step changes, to undo it (positions, velocities, pins, the time, the warm start)."""
-        mesh = self.scene.mesh
-        return {"node_x": mesh.node_x.copy(), "node_v": mesh.node_v.copy(), "node_pinned": mesh.node_pinned.copy(),
-                "time": self.time, "ticks": self._ticks, "last_dv": self.last_dv, "last_energy": self.last_energy,
-                "steps_taken": self.steps_taken, "kinetic_energy": self._free_kinetic_energy()}
-
-    def _restore_step_state(self, saved: dict) -> None:
-        mesh = self.scene.mesh
-        mesh.node_x[:] = saved["node_x"]
-        mesh.node_v[:] = saved["node_v"]
-        mesh.node_pinned[:] = saved["node_pinned"]
-        self.time, self._ticks, self.steps_taken = saved["time"], saved["ticks"], saved["steps_taken"]
-        self.last_dv, self.last_energy = None, saved["last_energy"]  # a failed solve is no warm start
-        if self.stages.obstacle_contact:
-            self.obstacle_set.set_time(self.time)
-
-    def step_failure(self, kinetic_energy_before: tuple[float, float]) -> str | None:
-        """The first of STEP_CHECKS the step just taken fails, or None. `kinetic_energy_before`:
-        (J, kg) of the free nodes before it (:meth:`_free_kinetic_energy`)."""
-        mesh = self.scene.mesh
-        if not (np.all(np.isfinite(mesh.node_x)) and np.all(np.isfinite(mesh.node_v))):
-            return "non_finite"
-        if len(mesh.node_v) and float(np.max(np.einsum("ij,ij->i", mesh.node_v, mesh.node_v))) > self.max_speed ** 2:
-            return "speed"
-        if self._free_kinetic_energy()[0] > self._kinetic_energy_bound(kinetic_energy_before):
-            return "kinetic_energy"
-        if self._step_gave_up:
-            return "collisions"
-        return None
-
-    def _kinetic_energy_bound(self, kinetic_energy_before: tuple[float, float]) -> float:
-        """J: KE_JUMP_FACTOR x (the free nodes' kinetic energy before the step + the elastic energy
-        at its start + their mass at KE_FLOOR_SPEED_M_S)."""
-        ke_before, mass = kinetic_energy_before
-        energy = self.last_energy  # the implicit step's, at the step's start
-        elastic = max(float(energy.get("membrane", 0.0) + energy.get("bending", 0.0)), 0.0)
-        return KE_JUMP_FACTOR * (ke_before + elastic + 0.5 * mass * KE_FLOOR_SPEED_M_S ** 2)
-
-    def _failure_message(self, failure: str) -> str:
-        mesh = self.scene.mesh
-        if failure == "non_finite":
-            return "non-finite node positions or velocities"
-        if failure == "speed":
-            speed = float(np.sqrt(np.max(np.einsum("ij,ij->i", mesh.node_v, mesh.node_v))))
-            return f"node speed {speed:.3g} m/s exceeds max_speed = {self.max_speed:g} m/s"
-        ke, _ = self._free_kinetic_energy()
-        return (f"kinetic energy {ke:.3g} J more than KE_JUMP_FACTOR = {KE_JUMP_FACTOR:g} times the kinetic and "
-                f"elastic energy before the step (with a floor of the cloth's mass at {KE_FLOOR_SPEED_M_S:g} m/s)")
 
     def step(self, timings: dict, stats: dict) -> None:
         """One implicit step of length self.dt with its contact and collision stages (unchecked:
@@ -704,52 +436,3 @@ class Simulation:
         stats["untangles"] += 1
         self.intersections_pending = int(s["intersections_left"])
         self.untangle_due = False
-
-    # ---- the record ------------------------------------------------------------------------
-    def view_counts(self) -> dict:
-        """Faces in view (in the frustum and facing the camera), back-facing in frame, out of frame,
-        and compressive_energy_out_j (cloth.physics.buckling.compressive_energy of the faces out
-        of the frame). NaN without a camera. The same definitions as the view-dependent sizing
-        (face centroids)."""
-        nan = float("nan")
-        if self.scene.camera is None:
-            return {"faces_in_view": nan, "faces_back_facing": nan, "faces_out_of_frame": nan,
-                    "faces_compensated": nan, "compressive_energy_out_j": nan}
-        c, n = face_geometry(self.scene.mesh)
-        d, front = face_view_data(self.scene.camera.camera_at(self.time), c, n)
-        inside = d == 0
-        return {"faces_in_view": int(np.count_nonzero(inside & front)),
-                "faces_back_facing": int(np.count_nonzero(inside & ~front)),
-                "faces_out_of_frame": int(np.count_nonzero(~inside)),
-                "faces_compensated": self.faces_compensated if self.buckling is not None else 0,
-                "compressive_energy_out_j": self.compressive_energy(np.flatnonzero(~inside))}
-
-    def compressive_energy(self, faces: np.ndarray) -> float:
-        """J: the membrane energy of the compressive principal strains of `faces` (what buckling
-        compensation removes), for either material type."""
-        mesh, material = self.scene.mesh, self.scene.material
-        if isinstance(material, MeasuredMaterial):
-            return float(measured_compressive_energy(mesh.node_x, mesh.face_nodes, mesh.face_Dm_inv, mesh.face_area,
-                                                     material.stretching_samples, np.asarray(faces, dtype=np.int64)))
-        mu, lam = material.lame()
-        return compressive_energy(mesh, mu, lam, faces)
-
-    def state_record(self) -> dict:
-        """Counts, energies and quality of the current state."""
-        mesh = self.scene.mesh
-        v2 = np.einsum("ij,ij->i", mesh.node_v, mesh.node_v)
-        energy = self.last_energy  # evaluated at the start of the last step: no extra assembly
-        view = self.view_counts()
-        return {**view,
-            "frame": self.frame,
-            "sim_time_s": self.time,
-            "nodes": mesh.n_nodes,
-            "verts": mesh.n_verts,
-            "faces": mesh.n_faces,
-            "kinetic_energy_j": float(0.5 * np.sum(mesh.node_m * v2)),
-            "potential_energy_j": float(sum(energy.values())),
-            "elastic_energy_j": float(energy.get("membrane", 0.0) + energy.get("bending", 0.0)),
-            "max_speed_m_s": float(np.sqrt(v2.max())),
-            "min_face_quality": float(mesh.face_quality().min()),
-            **{k: v for probe in self.scene.probes for k, v in probe(mesh).items()},
-        }

@@ -49,3 +49,13 @@ def test_an_unreadable_checkpoint_is_named(tmp_path):
     with pytest.raises(CheckpointError, match="state.pkl: cannot be read"):
         load_checkpoint(tmp_path)
     assert path.is_file()
+
+
+def test_a_checkpoint_naming_the_stage_plan_in_cloth_simulation_loads(tmp_path):
+    """Checkpoints written while the stage plan was defined in cloth.simulation name
+    cloth.simulation.Stages: it is defined in cloth.stages now and re-exported there."""
+    from cloth.stages import Stages
+
+    plan = Stages(forces=("membrane", "gravity"), remesh=True)
+    flat_package_checkpoint(tmp_path, plan, "cloth.stages", "cloth.simulation")
+    assert load_checkpoint(tmp_path).sim.sim == plan

@@ -95,6 +95,7 @@ def test_a_spike_tip_rising_through_a_coarse_face_is_stopped_only_by_the_step_co
 
 def test_scenes_without_a_mesh_obstacle_never_run_the_cloth_obstacle_pass(monkeypatch):
     import cloth.simulation as sc
+    import cloth.stages
     from cloth.scenes.registry import layered_sheets
     from cloth.simulation import Simulation
 
@@ -111,6 +112,7 @@ def test_scenes_without_a_mesh_obstacle_never_run_the_cloth_obstacle_pass(monkey
 
     monkeypatch.setattr(sc, "resolve_collisions_with_obstacles", counting_resolve)
     monkeypatch.setattr(sc, "mesh_obstacles", counting_find)
+    monkeypatch.setattr(cloth.stages, "mesh_obstacles", counting_find)  # the stage plan looks for them too
     for scene in (build_scene("hanging_sheet", COTTON, resolution=4),  # no obstacle
                   build_scene("sheet_on_sphere", COTTON, resolution=4),  # analytic obstacles
                   layered_sheets(COTTON, resolution=4)):  # analytic obstacles and self_collision
