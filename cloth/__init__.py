@@ -8,6 +8,9 @@ remeshing (Narain, Samii and O'Brien 2012). The package reads like one frame of 
     cloth.collision   BVH, CCD, obstacles, contact, self-collision, untangling
     cloth.scenes      scene registry, characters and motions, garments, obstacle bodies
     cloth.simulation  the frame loop: one named stage per line, each present only when declared
+    cloth.stages      the stage plan: which stages run, from the scene's effects and the mode
+    cloth.stepcontrol, cloth.restart, cloth.framerecord   the frame loop's step control, restart
+                      protocol and per-frame record (parts of cloth.simulation.Simulation)
     cloth.runner      the run loop: frames, records and every file a run writes
     cloth.eval        rasteriser and screen-space error (never imported by the simulation)
     cloth.io          OBJ, states, checkpoints, manifest, Rerun, stills
@@ -36,7 +39,7 @@ _EXPORTS = {
     "Sphere": "cloth.collision.obstacles", "Capsule": "cloth.collision.obstacles",
     "TriangleMeshObstacle": "cloth.collision.meshobstacle", "SelfCollisionParams": "cloth.collision.selfcollision",
     "Mannequin": "cloth.scenes.character", "build_scene": "cloth.scenes.registry",
-    "Simulation": "cloth.simulation", "SimulationDiverged": "cloth.simulation",
+    "Simulation": "cloth.simulation", "SimulationDiverged": "cloth.stepcontrol",
     "run": "cloth.runner", "Recorder": "cloth.io.recorder",
 }
 __all__ = sorted(_EXPORTS)

@@ -89,7 +89,7 @@ def summarize(frames: pd.DataFrame) -> dict:
     if "solves_capped" in frames.columns:
         out["solves_capped_total"] = int(frames["solves_capped"].sum())
         out["frames_with_capped_solves"] = int((frames["solves_capped"] > 0).sum())
-    if "steps_rejected" in frames.columns:  # step control (cloth.simulation: MAX_STEP_HALVINGS)
+    if "steps_rejected" in frames.columns:  # step control (cloth.stepcontrol: MAX_STEP_HALVINGS)
         rejected = frames["steps_rejected"].fillna(0).astype(int)
         out["steps_rejected_total"] = int(rejected.sum())
         for check in STEP_CHECKS:

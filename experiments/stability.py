@@ -36,7 +36,7 @@ Each case is a scene and mode with a few overrides:
 - karate_no_floor (--long): karate in the paper's view-dependent method without this project's
   contact floor, 150 frames.
 
-Both diverged in the main job before step control (cloth.simulation: MAX_STEP_HALVINGS) and the
+Both diverged in the main job before step control (cloth.stepcontrol: MAX_STEP_HALVINGS) and the
 bending fade (cloth.physics.bending: HINGE_FADE_HEIGHT).
 
 - crowd_dancer_no_floor: dancer 5 of the ten dancers, view-dependent without the contact floor,

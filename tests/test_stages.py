@@ -1,5 +1,5 @@
 """The stage plan: what a scene declares and what a mode asks for decide, in one place
-(cloth.simulation.plan_stages), which stages the frame loop calls; a stage that is not planned
+(cloth.stages.plan_stages), which stages the frame loop calls; a stage that is not planned
 is never called. Checked by replacing every stage's implementation with a counter."""
 
 import pickle

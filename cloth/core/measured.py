@@ -147,7 +147,7 @@ class MeasuredMaterial:
 
     Multipliers are already applied: this is the material the physics sees. The isotropic
     :class:`cloth.core.material.Material` and this class both give a Scene its `density`;
-    the force terms (cloth.simulation.build_force_terms) choose the physics by the type.
+    the force terms (cloth.stages.build_force_terms) choose the physics by the type.
     """
 
     name: str

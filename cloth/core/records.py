@@ -55,7 +55,7 @@ STRAIN_LIMIT_RECORD = {"strain_limit_iterations": 0, "strain_violation_max": 0.0
 COLLISION_RECORD = {"self_velocity_clamped": 0, "untangles": 0, **SELF_COLLISION_RECORD, **OBSTACLE_RECORD,
                     **UNTANGLE_RECORD}
 
-# Step control (cloth.simulation: MAX_STEP_HALVINGS): the checks a step must pass, in the order
+# Step control (cloth.stepcontrol: MAX_STEP_HALVINGS): the checks a step must pass, in the order
 # they are tried (a non-finite state; a node over max_speed; the kinetic energy jumping by more than
 # KE_JUMP_FACTOR; a collision pass that gave up), and per frame the steps rejected (undone and
 # taken again as two of half the length), of each kind, and the shortest step taken (s; the

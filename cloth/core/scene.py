@@ -1,6 +1,6 @@
 """A scene: the cloth, its material, what acts on it (its declared effects) and its timing.
 
-A scene lists the effects it needs; :func:`cloth.simulation.plan_stages` turns that list (and the
+A scene lists the effects it needs; :func:`cloth.stages.plan_stages` turns that list (and the
 mode's choices) into the stages of the frame loop once, so an effect that is not listed costs nothing.
 """
 

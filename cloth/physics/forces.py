@@ -1,7 +1,7 @@
 """Force terms: one class per physical effect, each adding energy, forces and Jacobians.
 
 A step is assembled once from the list of terms the scene asks for (see
-:func:`cloth.simulation.build_force_terms`), so a term that is not listed is never called.
+:func:`cloth.stages.build_force_terms`), so a term that is not listed is never called.
 
 Every term implements
 
