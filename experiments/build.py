@@ -1,21 +1,21 @@
 """From a composed config to a ready Simulation: the one place where config values are checked.
 
 Hydra composes the config; this module turns it into solver objects and raises
-:class:`ConfigError` with a message naming the offending key before any work starts.
+:class:`ConfigError` with a message naming the offending key before any work starts. The checks
+it makes on the way (typed checks of values and parameter classes, the keys a run reads, the
+command line winning over a scale preset) are in :mod:`experiments.checks`; the record of what a
+built config uses (resolved.yaml) in :mod:`experiments.resolved`. ConfigError, command_line_wins
+and resolved_record are re-exported here, where the entry points and tests import them.
 """
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import importlib.util
 import inspect
-import math
 import os
 import re
 import sys
-import types
-import typing
 
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
@@ -35,124 +35,34 @@ from cloth.simulation import Simulation
 from cloth.view.camera import ViewError
 from cloth.view.paths import fit_shots, path_from_config
 from cloth.view.viewdep import ViewDependentRemesher, ViewParams
+from experiments.checks import (
+    MODE_KEYS,
+    SCENE_KEYS,
+    TOP_LEVEL_KEYS,
+    _check_bool,
+    _check_fields,
+    _check_int,
+    _check_positive,
+    _finite,
+    _hints,
+    _int_at_least,
+    _is_number,
+    _params,
+    _plain,
+    _require,
+    check_output,
+)
+
+# Re-exported: where the entry points and tests import them (module docstring).
+from experiments.checks import ConfigError as ConfigError
+from experiments.checks import command_line_wins as command_line_wins
+from experiments.resolved import resolved_record as resolved_record
 
 IMPLEMENTED_MODES = ("nonadaptive", "adaptive", "viewdep")
 REMESHING_MODES = ("adaptive", "viewdep")
 
 
 MEMBER_SEED_STRIDE = 1000  # scene seed of member K of a reference ensemble: seed + 1000 K
-
-
-class ConfigError(ValueError):
-    """A bad config value; the message names the key."""
-
-
-def _require(cond: bool, key: str, msg: str) -> None:
-    if not cond:
-        raise ConfigError(f"{key}: {msg}")
-
-
-def _is_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-
-def _finite(v) -> bool:
-    return _is_number(v) and math.isfinite(v)
-
-
-def _int_at_least(v, low: int) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool) and v >= low
-
-
-def _check_int(v, key: str, low: int, what: str = "") -> int:
-    _require(_int_at_least(v, low), key, f"must be an integer >= {low}{what}, got {v!r}")
-    return int(v)
-
-
-def _check_positive(v, key: str, unit: str = "") -> float:
-    _require(_finite(v) and v > 0, key, f"must be a finite number > 0{unit}, got {v!r}")
-    return float(v)
-
-
-def _check_bool(v, key: str) -> bool:
-    _require(isinstance(v, bool), key, f"must be true or false, got {v!r}")
-    return v
-
-
-def _type_problem(value, hint) -> str | None:
-    """What is wrong with `value` for the annotation `hint` (None: nothing). float: a finite
-    number (an integer is one); int: an integer (not a bool, not 2.5); bool: true or false; str: a
-    string; X | None: null or an X. Other annotations (tuples, paths, objects) are not checked here."""
-    if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
-        args = typing.get_args(hint)
-        if value is None and type(None) in args:
-            return None
-        problems = [_type_problem(value, a) for a in args if a is not type(None)]
-        if any(p is None for p in problems):
-            return None
-        return problems[0] + (" or null" if type(None) in args else "")
-    if hint is float:
-        return None if _finite(value) else "must be a finite number"
-    if hint is int:
-        return None if isinstance(value, int) and not isinstance(value, bool) else "must be an integer"
-    if hint is bool:
-        return None if isinstance(value, bool) else "must be true or false"
-    if hint is str:
-        return None if isinstance(value, str) else "must be a string"
-    return None
-
-
-def _hints(target) -> dict:
-    """The annotations of a dataclass's fields or a function's parameters (resolved)."""
-    try:
-        hints = typing.get_type_hints(target)
-    except (NameError, TypeError):  # an annotation that does not resolve: not checked
-        hints = {}
-    hints.pop("return", None)
-    return hints
-
-
-def _check_fields(target, values: dict, key: str, known=None) -> dict:
-    """`values` checked against the annotations of `target` (a dataclass: its fields, a function:
-    its parameters), every key known; returns them with the integers of float fields as floats.
-    ConfigError names `key`.<field>."""
-    hints = _hints(target)
-    if known is None:
-        known = ({f.name for f in dataclasses.fields(target)} if dataclasses.is_dataclass(target)
-                 else set(inspect.signature(target).parameters))
-    for name, value in values.items():
-        _require(name in known, f"{key}.{name}", f"unknown key; known: {', '.join(sorted(known))}")
-        problem = _type_problem(value, hints.get(name))
-        _require(problem is None, f"{key}.{name}", f"{problem}, got {value!r}")
-    return {k: float(v) if hints.get(k) is float and _is_number(v) else v for k, v in values.items()}
-
-
-def _value_error_key(message: str, key: str, names) -> str:
-    """`key: message` for a parameter class's ValueError, naming the field it starts with
-    (`size_min must be > 0` -> `mode.sizing.size_min: must be > 0`, `view.nu_out must be ...` ->
-    `mode.view.nu_out: must be ...`)."""
-    last = key.rsplit(".", 1)[-1] + "."
-    if message.startswith(last):  # a message that names its own group (view.l_min_px ...)
-        message = message[len(last):]
-    m = re.match(r"(\w+)", message)
-    if m and m.group(1) in names:
-        rest = message[m.end():].lstrip()
-        return f"{key}.{m.group(1)}: {rest if rest.startswith('must') else message}"
-    return f"{key}: {message}"
-
-
-def _params(cls, values: dict, key: str):
-    """cls(**values), every value checked (:func:`_check_fields`, then the class's own checks);
-    ConfigError names the key."""
-    given = dict(values)
-    checked = _check_fields(cls, given, key)
-    try:
-        cls(**given)  # the class's own checks, its messages naming the values as given
-    except TypeError as exc:  # a missing key
-        raise ConfigError(f"{key}: {exc}") from None
-    except ValueError as exc:
-        raise ConfigError(_value_error_key(str(exc), key, {f.name for f in dataclasses.fields(cls)})) from None
-    return cls(**checked)
 
 
 def build_material(cfg: DictConfig):
@@ -164,11 +74,6 @@ def build_material(cfg: DictConfig):
         raise ConfigError(f"material: {exc}") from None
     except MaterialError as exc:
         raise ConfigError(f"material.{exc.key}: {exc}") from None
-
-
-def _plain(node):
-    """A config node as plain Python (dicts, lists), resolved; a plain value as it is."""
-    return OmegaConf.to_container(node, resolve=True) if isinstance(node, DictConfig) else node
 
 
 def _crowd_default(key: str):
@@ -377,92 +282,6 @@ def crowd_size(cfg: DictConfig) -> int | None:
     return dancers
 
 
-_OVERRIDE = re.compile(r"(\+\+|\+|~)?([A-Za-z_][\w.]*)(?:@[\w.]*)?(=.*)?")
-
-
-def override_keys(overrides) -> list[str]:
-    """The config keys that command-line overrides (Hydra's syntax: key=value, +key=value,
-    ++key=value) set, in order; deletions (~key) and group choices count as set too."""
-    keys = []
-    for arg in overrides or ():
-        m = _OVERRIDE.fullmatch(str(arg))
-        if m and m.group(2) not in keys:
-            keys.append(m.group(2))
-    return keys
-
-
-def command_line_wins(cfg: DictConfig, overrides) -> DictConfig:
-    """`cfg` with the scale preset (scene.scales.<scale>, and its reference preset) giving way to
-    what the command line (`overrides`, HydraConfig's overrides.task) sets:
-
-    * scene.params.K: the preset's K (and its reference's) is dropped, so the command line's value
-      is the scene's;
-    * mode.sizing.K: the preset's sizing.K becomes the command line's value (a preset's sizing and
-      an ARCSim conf's remeshing sizes are applied over mode.sizing: this way the command line
-      wins over both).
-
-    Both a key and the preset's own key on the command line (mode.sizing.size_min and
-    scene.scales.small.sizing.size_min) are refused, naming both. The config a run records
-    (config.yaml) is this one: a replay or resume builds what ran. A copy; `cfg` is unchanged."""
-    keys = override_keys(overrides)
-    scale = cfg.get("scale")
-    presets = cfg.scene.get("scales") if "scene" in cfg else None
-    if not isinstance(scale, str) or presets is None or scale not in presets:
-        return cfg  # build() names the bad scale
-    cfg = copy.deepcopy(cfg)
-    OmegaConf.set_struct(cfg, False)
-    preset = cfg.scene.scales[scale]
-    at = f"scene.scales.{scale}"
-    for key in keys:
-        parts = key.split(".")
-        if len(parts) == 3 and parts[:2] == ["scene", "params"]:
-            k = parts[2]
-            for where, node in ((at, preset), (f"{at}.reference", preset.get("reference"))):
-                if isinstance(node, DictConfig) and k in node:
-                    _require(f"{where}.{k}" not in keys, key,
-                             f"both {key} and {where}.{k} are set on the command line: set one")
-                    del node[k]
-        elif len(parts) == 3 and parts[:2] == ["mode", "sizing"] and "sizing" in cfg.mode:
-            k = parts[2]
-            _require(f"{at}.sizing.{k}" not in keys, key,
-                     f"both {key} and {at}.sizing.{k} are set on the command line: set one")
-            if k in cfg.mode.sizing:
-                if not isinstance(preset.get("sizing"), DictConfig):
-                    preset.sizing = {}
-                preset.sizing[k] = cfg.mode.sizing[k]
-    return cfg
-
-
-# The keys each mode reads (conf/mode/); any other is refused, not ignored.
-MODE_KEYS = {"nonadaptive": {"name", "buckling"},
-             "adaptive": {"name", "every", "sizing", "remesh", "pop_filter", "buckling"},
-             "viewdep": {"name", "every", "sizing", "remesh", "pop_filter", "buckling", "view"}}
-# The top-level keys a run reads or records (conf/config.yaml, its groups, and what the study
-# presets of conf/experiment and conf/point set: `points`, `baseline`); any other is refused,
-# never silently ignored (`+foo=1`, a key mistyped with a `+`).
-TOP_LEVEL_KEYS = frozenset({"camera", "scene", "mode", "material", "solver", "output", "frames", "seed", "repeats",
-                            "scale", "resolution_factor", "crowd_jobs", "crowd_backend", "max_speed", "study",
-                            "reference", "reference_member", "variant", "drape_mesh", "points", "baseline"})
-# The keys of a scene (conf/scene/*.yaml): the others are refused.
-SCENE_KEYS = frozenset({"name", "effects", "frames", "params", "scales", "view"})
-# output.* (conf/output/default.yaml): what each is, checked before any run.
-OUTPUT_INTS = ("obj_every", "stills_every", "states_every", "checkpoint_every")  # frames, 0: never
-OUTPUT_BOOLS = ("rerun", "progress")
-
-
-def check_output(cfg: DictConfig) -> None:
-    """Every output.* key (conf/output/default.yaml), ConfigError naming a bad one."""
-    out = _plain(cfg.get("output")) or {}
-    _require(isinstance(out, dict), "output", f"must be a mapping, got {out!r}")
-    known = set(OUTPUT_INTS) | set(OUTPUT_BOOLS)
-    for key, value in out.items():
-        _require(key in known, f"output.{key}", f"unknown key; known: {', '.join(sorted(known))}")
-        if key in OUTPUT_BOOLS:
-            _check_bool(value, f"output.{key}")
-        else:
-            _check_int(value, f"output.{key}", 0, " (frames; 0: never)")
-
-
 @dataclasses.dataclass
 class Built:
     """What a config became: the simulation, the frames it runs, and the keyword parameters its
@@ -652,52 +471,3 @@ def _arcsim_mode(cfg: DictConfig, params: dict, mode: str, scale_sizing: dict) -
     else:
         params["mode_mesh"] = "uniform"
     return {**wants["sizing"], **scale_sizing}, wants["pop_filter"]
-
-
-def _record_value(v):
-    """A built value as plain YAML data (dataclasses as mappings, tuples and arrays as lists)."""
-    if dataclasses.is_dataclass(v) and not isinstance(v, type):
-        return {f.name: _record_value(getattr(v, f.name)) for f in dataclasses.fields(v)}
-    if isinstance(v, dict):
-        return {str(k): _record_value(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple, set, frozenset)):
-        items = sorted(v) if isinstance(v, (set, frozenset)) else v
-        return [_record_value(x) for x in items]
-    if isinstance(v, np.ndarray):
-        return _record_value(v.tolist())
-    if isinstance(v, np.generic):
-        return v.item()
-    if v is None or isinstance(v, (bool, int, float, str)):
-        return v
-    return str(v)
-
-
-def resolved_record(built: Built) -> dict:
-    """The values a run uses, read from the built objects (what a run folder's resolved.yaml
-    holds): the frames, the scene (its builder's parameters and what the scene became), the
-    material, the solver's options, the remesher's (sizing, remesh, pop filter, view), the
-    buckling compensation's and max_speed. config.yaml says what was asked; this, what ran (an
-    ARCSim conf's remeshing sizes, a scale preset, resolution_factor are applied here)."""
-    sim = built.sim
-    scene, remesher = sim.scene, sim.remesher
-    remesh = None
-    if remesher is not None:
-        remesh = {"kind": type(remesher).__name__, "every": remesher.every,
-                  "sizing": _record_value(remesher.sizing), "remesh": _record_value(remesher.params),
-                  "pop_filter": _record_value(remesher.pop)}
-        if hasattr(remesher, "view"):
-            remesh["view"] = _record_value(remesher.view)
-            remesh["frame_time"] = float(remesher.frame_time)
-    return {
-        "frames": int(built.frames),
-        "max_speed": float(sim.max_speed),
-        "scene": {"name": scene.name, "params": _record_value(built.scene_params),
-                  "frame_time": float(scene.frame_time), "steps_per_frame": int(scene.steps_per_frame),
-                  "effects": _record_value(scene.effects), "thickness": float(scene.thickness),
-                  "friction": float(scene.friction), "faces": int(sim.mesh.n_faces),
-                  "camera": None if scene.camera is None else type(scene.camera).__name__},
-        "material": {"kind": type(scene.material).__name__, **_record_value(scene.material)},
-        "solver": _record_value(sim.solver),
-        "remesher": remesh,
-        "buckling": _record_value(sim.buckling),
-    }
