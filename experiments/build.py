@@ -88,7 +88,7 @@ def stage_camera_config(cam: dict, scene: dict) -> dict:
 
     `stage_scale: {stage: {dancers, columns, spacing}, front_row_dancer: k}` says which stage the
     shots are written for (conf/camera/crowd_shots.yaml). The scene's stage (its dancers, columns,
-    spacing: cloth.scenes.registry.crowd_placement) against that one gives
+    spacing: cloth.scenes.crowd.crowd_placement) against that one gives
     (cloth.view.paths.fit_shots):
 
     * scale = max(1, R / R_written), R a stage's radius: the largest horizontal distance of a
@@ -275,7 +275,7 @@ def crowd_size(cfg: DictConfig) -> int | None:
     _require(_int_at_least(dancers, 1), "scene.params.dancers", f"must be an integer >= 1, got {dancers!r}")
     columns = params.get("columns")
     _require(columns is None or _int_at_least(columns, 1), "scene.params.columns",
-             f"must be an integer >= 1, or null (auto: cloth.scenes.registry.crowd_columns), got {columns!r}")
+             f"must be an integer >= 1, or null (auto: cloth.scenes.crowd.crowd_columns), got {columns!r}")
     jobs = cfg.get("crowd_jobs", 1)
     _require(_int_at_least(jobs, 1), "crowd_jobs", f"must be an integer >= 1, got {jobs!r}")
     crowd_backend(cfg)

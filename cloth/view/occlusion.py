@@ -28,7 +28,7 @@ The test, per face that is in frame and front-facing (:func:`occluded_faces`):
 
 Limits: the occluders are the obstacles of the character's own simulation. A crowd
 (``multiple_dancers``) simulates every dancer in its own process (experiments/run.py), and its
-scene holds only that dancer's body (cloth.scenes.registry.multiple_dancers): the other dancers'
+scene holds only that dancer's body (cloth.scenes.crowd.multiple_dancers): the other dancers'
 cloth is not there at all, and their bodies, though prescribed, are not built in the process, so
 neither hides anything. Occluders are drawn with the current geometry; nothing predicts where
 the cloth or the body will be at a future camera sample.
