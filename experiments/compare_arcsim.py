@@ -69,7 +69,7 @@ from cloth.io.obj import ObjError, load_obj  # noqa: E402
 from cloth.io.states import StateError, load_state, merge_states  # noqa: E402
 from cloth.runner import JOURNAL_FILE, read_journal  # noqa: E402
 from experiments.accuracy import state_files  # noqa: E402
-from experiments.aggregate import with_sim_seconds  # noqa: E402
+from experiments.runs import with_sim_seconds  # noqa: E402
 
 DEFAULT_OUT = "compare_arcsim"  # --out: this sub-folder of the run folder
 FRAME_TIME_RTOL = 1e-6  # two frame times are "the same" to this relative difference (both are config values)
