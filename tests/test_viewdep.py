@@ -110,7 +110,12 @@ def test_anticipation_refines_before_a_jump_cut():
         # Chosen by where they are, not by material region: which cloth lies there depends on the
         # drape (with the unseen half coarse, the sheet can slide off the sphere towards -x).
         west = (d == 0) & front & (before.distance_to_frustum(c) > OLD_SHOT_MARGIN)
-        assert west.sum() > 0
+        x = sim.mesh.node_x
+        assert west.sum() > 0, (  # the state, so that a failure says where the sheet went
+            f"anticipation={anticipation}: no face becomes visible at the cut; {sim.mesh.n_faces} faces, "
+            f"{int((d == 0).sum())} in the new frustum, {int(front.sum())} facing it, cloth in "
+            f"x {x[:, 0].min():.3f}..{x[:, 0].max():.3f} y {x[:, 1].min():.3f}..{x[:, 1].max():.3f} "
+            f"z {x[:, 2].min():.3f}..{x[:, 2].max():.3f} m, {int(sim.node_passing.sum())} nodes passing")
         # full resolution = the view-independent sizing (nu = 1), as mode=adaptive would ask now
         M = face_to_vert_sizing(sim.mesh, AdaptiveRemesher.face_sizing(sim.remesher, sim))
         s = face_edge_sizes(sim.mesh, M)[west]
