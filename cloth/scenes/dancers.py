@@ -99,7 +99,7 @@ def _dancer_garment(name: str, body, garment: str, resolution: int, waist_radius
         raise SceneError(f"scene {name!r}: garment_obj: {exc}") from None
 
 
-def solo_dancer(material: Material, *, resolution: int = 48, waist_radius: float = 0.18, skirt_length: float = 0.55,
+def solo_dancer(material: Material, *, resolution: int = 31, waist_radius: float = 0.18, skirt_length: float = 0.55,
                 speed: float = 1.0, spin_hz: float = 1.0, settle: float = 0.5, blend_in: float = 1.0,
                 position=(0.0, 0.0, 0.0), heading: float = 0.0, phase: float = 0.0,
                 thickness: float = 0.005, friction: float = 0.3, frame_time: float = 0.04,
@@ -152,7 +152,7 @@ NO_SELF_COLLISION_NOTE = ("karate: the scene does not declare self_collision, so
                           "each other where they touch")
 
 
-def karate(material: Material, *, resolution: int = 48, inner_radius: float = 0.26, inner_length: float = 0.55,
+def karate(material: Material, *, resolution: int = 36, inner_radius: float = 0.26, inner_length: float = 0.55,
            outer_radius: float = 0.29, outer_length: float = 0.35, outer_waist_height: float = 0.09,
            speed: float = 1.0, settle: float = 0.5,
            blend_in: float = 1.0, position=(0.0, 0.0, 0.0), heading: float = 0.0, phase: float = 0.0,

@@ -2,6 +2,9 @@
 mesh_obstacle and the Cusick drape test (cusick_drape).
 
 Each builder takes plain parameters (no Hydra) and returns a :class:`cloth.core.scene.Scene`.
+Its defaults are conf/scene/<name>.yaml's `params` and its `scales.small.resolution`, so that
+`build_scene(name, material)` is the scene `python -m experiments.run scene=<name>` runs
+(tests/test_scene_defaults.py builds every scene both ways).
 World axes: z up, metres. `resolution` is the number of grid cells along the sheet's longer
 side, so a square sheet has 2 * resolution^2 faces.
 """
@@ -22,7 +25,7 @@ from cloth.scenes.common import _check_resolution, _check_size, _jitter
 from cloth.scenes.garments import uniform_annulus_mesh
 
 
-def hanging_sheet(material: Material, *, resolution: int = 16, size: float = 1.0, height: float = 1.0,
+def hanging_sheet(material: Material, *, resolution: int = 20, size: float = 1.0, height: float = 1.0,
                   frame_time: float = 1 / 30, steps_per_frame: int = 4, jitter: float = 0.0, seed: int = 0,
                   effects=("membrane", "bending", "gravity", "damping")) -> Scene:
     """A square sheet held by its two corners at y = size, released horizontal: it swings down and hangs."""
@@ -38,9 +41,9 @@ def hanging_sheet(material: Material, *, resolution: int = 16, size: float = 1.0
                  handles=[Handle(corners, Static())])
 
 
-def sheet_on_sphere(material: Material, *, resolution: int = 32, size: float = 1.0, drop_height: float = 0.75,
+def sheet_on_sphere(material: Material, *, resolution: int = 24, size: float = 1.0, drop_height: float = 0.75,
                     sphere_radius: float = 0.25, thickness: float = 0.005, friction: float = 0.3,
-                    frame_time: float = 1 / 30, steps_per_frame: int = 4, jitter: float = 1e-4, seed: int = 0,
+                    frame_time: float = 0.04, steps_per_frame: int = 8, jitter: float = 1e-4, seed: int = 0,
                     effects=("membrane", "bending", "gravity", "damping", "obstacles")) -> Scene:
     """A square sheet falls onto a sphere resting on the ground and drapes over both."""
     name = "sheet_on_sphere"
@@ -56,10 +59,10 @@ def sheet_on_sphere(material: Material, *, resolution: int = 32, size: float = 1
                  obstacles=obstacles, thickness=thickness, friction=friction)
 
 
-def flag(material: Material, *, resolution: int = 30, width: float = 1.5, height: float = 1.0,
+def flag(material: Material, *, resolution: int = 24, width: float = 1.5, height: float = 1.0,
          pole_height: float = 2.0, wind_velocity=(6.0, 1.5, 0.0), drag: float = 0.5,
-         gust_amplitude: float = 0.3, gust_frequency: float = 0.7, frame_time: float = 1 / 30,
-         steps_per_frame: int = 4, jitter: float = 1e-4, seed: int = 0,
+         gust_amplitude: float = 0.3, gust_frequency: float = 0.7, frame_time: float = 0.04,
+         steps_per_frame: int = 8, jitter: float = 1e-4, seed: int = 0,
          effects=("membrane", "bending", "gravity", "damping", "wind")) -> Scene:
     """A flag pinned along its left edge to a vertical pole, in a gusting wind."""
     name = "flag"
@@ -188,7 +191,7 @@ def mesh_obstacle(material: Material, *, resolution: int = 24, size: float = 1.0
                  obstacles=obstacles if "obstacles" in effects else [], thickness=thickness, friction=friction)
 
 
-def cusick_drape(material: Material, *, resolution: int = 24, specimen_radius: float = 0.15,
+def cusick_drape(material: Material, *, resolution: int = 48, specimen_radius: float = 0.15,
                  support_radius: float = 0.09, height: float = 0.6, frame_time: float = 0.04,
                  steps_per_frame: int = 8, jitter: float = 1e-4, seed: int = 0,
                  effects=("membrane", "bending", "gravity", "damping")) -> Scene:
