@@ -27,9 +27,9 @@ import yaml
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
-from experiments.accuracy import AccuracyError, evaluate_runs, write_accuracy
-from experiments.sync import BEFORE_CUT, EVERY, HORIZON, RESOLUTION_SCALE, check_options, write_sync
-from experiments.sync import evaluate_run as evaluate_sync
+from experiments.analysis.accuracy import AccuracyError, evaluate_runs, write_accuracy
+from experiments.analysis.sync import BEFORE_CUT, EVERY, HORIZON, RESOLUTION_SCALE, check_options, write_sync
+from experiments.analysis.sync import evaluate_run as evaluate_sync
 
 
 def run_folders(sweep_dir: Path) -> list[Path]:

@@ -23,6 +23,7 @@ import pandas as pd
 from hydra import compose, initialize_config_dir
 
 from cloth.io.manifest import environment_manifest, write_json_atomic, write_text_atomic
+from experiments.analysis.tables import markdown
 from experiments.build import build_simulation
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
@@ -59,14 +60,6 @@ def table(frames: pd.DataFrame) -> pd.DataFrame:
         base = t[t["mode"] == ref].set_index("scene")["s_per_frame_mean"]
         t[f"speedup_vs_{ref}"] = base.reindex(t["scene"]).to_numpy() / t["s_per_frame_mean"]
     return t
-
-
-def markdown(t: pd.DataFrame) -> str:
-    """A Markdown table (3 significant digits) without extra dependencies."""
-    fmt = lambda v: f"{v:.3g}" if isinstance(v, float) else str(v)  # noqa: E731
-    lines = ["| " + " | ".join(t.columns) + " |", "|" + "---|" * len(t.columns)]
-    lines += ["| " + " | ".join(fmt(v) for v in row) + " |" for row in t.itertuples(index=False)]
-    return "\n".join(lines) + "\n"
 
 
 def main(argv=None) -> None:

@@ -1,5 +1,5 @@
 """Where a crowd's characters run: each is an independent simulation, a task `task(*args)` that
-writes its own run folder (experiments.run.run_character, experiments.resume.resume_character).
+writes its own run folder (experiments.launch.run_character, experiments.resume.resume_character).
 
 `crowd_backend` (experiments.build.CROWD_BACKENDS) picks how they run, `crowd_jobs` how many at once.
 The default, ``auto``, is ``ray`` when Ray is installed (the ``ray`` extra) and there is a Ray to
@@ -15,11 +15,11 @@ use (RAY_ADDRESS set, or this process is itself a Ray task), else ``processes``
   started for the crowd and shut down after it. In a process that is already connected to Ray (a
   run that is itself a Ray task: cluster=ray), the characters go to that Ray.
 * ``processes``: `crowd_jobs` local processes (joblib's loky), each with the thread count that
-  experiments.run.share_cores gave this process (SHARE_ENV, inherited; the user's
+  experiments.launch.share_cores gave this process (SHARE_ENV, inherited; the user's
   NUMBA_NUM_THREADS is the ceiling).
 
 With `crowd_jobs` 1 (and no RAY_ADDRESS for ray) the characters run one after the other in this
-process, as the only run on the machine (with its threads: experiments.run.share_cores); so does
+process, as the only run on the machine (with its threads: experiments.launch.share_cores); so does
 a crowd of one character in processes (joblib runs a single job in this process), while on Ray
 it is a Ray task like any other, on one thread. Either way a character that fails keeps what it wrote
 (cloth.runner.run writes its summary on the way out); on Ray every other character still runs to
@@ -37,7 +37,7 @@ from joblib import Parallel, delayed
 
 # The thread environment of a character on Ray: one thread each (every library that reads one).
 THREAD_ENV = {"MKL_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
-# A local worker process's numba thread count (experiments.run.share_cores sets it, `here` reads
+# A local worker process's numba thread count (experiments.launch.share_cores sets it, `here` reads
 # it). Not NUMBA_NUM_THREADS: numba re-reads that at every compilation and refuses a change once
 # its threads run, and the user's own value is a ceiling, not ours to rewrite.
 SHARE_ENV = "CLOTH_NUMBA_THREADS"
@@ -51,7 +51,7 @@ def worker_info() -> dict:
 
 def here(task, *args) -> dict:
     """A character in this process or a local worker process, with its share of the cores
-    (SHARE_ENV, set by experiments.run.share_cores; at most numba's NUMBA_NUM_THREADS)."""
+    (SHARE_ENV, set by experiments.launch.share_cores; at most numba's NUMBA_NUM_THREADS)."""
     share = os.environ.get(SHARE_ENV, "")
     if share.isdigit() and int(share) >= 1:
         numba.set_num_threads(min(int(share), numba.config.NUMBA_NUM_THREADS))

@@ -55,7 +55,7 @@ WARMUP = [sys.executable, "-m", "experiments.run", "scene=karate", "+point=viewd
 
 # Table 1's crowd (ten characters) costs ten times a character per run: the main job runs the
 # single-character scenes with table1's repeats and the crowd `--crowd-repeats` times (default 1),
-# its characters two at a time with one numba thread each (experiments.run.share_cores), so that
+# its characters two at a time with one numba thread each (experiments.launch.share_cores), so that
 # the job stays within about 90 minutes on 2 cores at scale=small.
 SINGLE_SCENES = "karate,solo_dancer"
 CROWD_SCENE = "multiple_dancers"

@@ -54,7 +54,7 @@ from cloth.io.checkpoint import FINAL_STATE_FILE, CheckpointError, load_final_st
 from cloth.io.manifest import write_json_atomic
 from cloth.simulation import SimulationDiverged
 from experiments.build import ConfigError, build_simulation, crowd_size
-from experiments.run import run_from_config
+from experiments.launch import run_from_config
 
 # Relative difference a replay accepts by default: none (bit-identical; see the module docstring).
 REPLAY_RTOL = 0.0

@@ -49,7 +49,7 @@ from cloth.signals import Terminated, sigterm_interrupts
 from cloth.simulation import SimulationDiverged
 from experiments.build import ConfigError, crowd_backend, crowd_size, run_frames
 from experiments.crowd import run_characters, where
-from experiments.run import checkpoint_every, make_recorder, run_character
+from experiments.launch import checkpoint_every, make_recorder, run_character
 
 
 class ResumeError(RuntimeError):

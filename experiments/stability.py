@@ -60,8 +60,8 @@ from omegaconf import open_dict
 from cloth.collision.untangle import find_intersections
 from cloth.core.records import STEP_CHECKS
 from cloth.io.manifest import code_version, write_text_atomic
+from experiments.analysis.tables import markdown
 from experiments.build import build_simulation
-from experiments.compare_modes import markdown
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
 

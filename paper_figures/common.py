@@ -16,8 +16,8 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from cloth.io.manifest import atomic_write, write_text_atomic  # noqa: E402
-from experiments.aggregate import latest, report_problems  # noqa: E402
-from experiments.runs import AggregateError, RunSet, check_roots, load_runs  # noqa: E402
+from experiments.analysis.aggregate import latest, report_problems  # noqa: E402
+from experiments.analysis.runs import AggregateError, RunSet, check_roots, load_runs  # noqa: E402
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = REPO_ROOT / "results" / "paper_figures"

@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 
 from cloth.io.manifest import write_text_atomic
-from experiments.aggregate import Problem, disagreement, is_default_variant, latest
+from experiments.analysis.aggregate import Problem, disagreement, is_default_variant, latest
 
 from .common import RunSet, Skip, script_main
 
@@ -67,7 +67,7 @@ def _grows(speedups: list[float]) -> list:
 
 
 def crowd_scaling_table(runs: pd.DataFrame) -> pd.DataFrame:
-    """The table of the module docstring from a runs table (experiments.aggregate.load_runs);
+    """The table of the module docstring from a runs table (experiments.analysis.aggregate.load_runs);
     `.attrs['notes']` and `.attrs['problems']` as Table 1's, `.attrs['verdict']` per scale: True
     when the speed-up grows from each crowd size to the next, False when it does not, None when
     fewer than two sizes have one."""

@@ -17,8 +17,8 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 
-from experiments.aggregate import MODES, is_default_variant, latest, table1_runs
-from experiments.tables import PAPER_SCENES
+from experiments.analysis.aggregate import MODES, is_default_variant, latest, table1_runs
+from experiments.analysis.tables import PAPER_SCENES
 
 from .common import MODE_NAMES, RunSet, Skip, color, read_paper_timings, save_figure, script_main, time_unit
 

@@ -27,8 +27,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from experiments.aggregate import MODES, baseline_for
-from experiments.sync import paired_difference_interval, read_windows
+from experiments.analysis.aggregate import MODES, baseline_for
+from experiments.analysis.sync import paired_difference_interval, read_windows
 
 from .common import MODE_MARKERS, MODE_NAMES, RunSet, Skip, color, place_labels, save_figure, script_main, write_table
 

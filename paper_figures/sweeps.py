@@ -21,7 +21,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from experiments.aggregate import baseline_for
+from experiments.analysis.aggregate import baseline_for
 
 from .common import RunSet, Skip, one_factor, save_figure, script_main, study_or_all, write_table
 

@@ -4,7 +4,7 @@ LaTeX, with the paper's Table 1 beside it.
     python -m paper_figures.table1 ROOT [ROOT ...] [--out DIR]
 
 Runs: the table1 study's when there are any, else every run (never the fine references); see
-experiments.aggregate.table1 for duplicates and the speed-up, experiments.tables for the text.
+experiments.analysis.aggregate.table1 for duplicates and the speed-up, experiments.analysis.tables for the text.
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.aggregate import Problem, table1, table1_runs
-from experiments.tables import write_table1
+from experiments.analysis.aggregate import Problem, table1, table1_runs
+from experiments.analysis.tables import write_table1
 
 from .common import RunSet, Skip, script_main
 from .pareto import pareto_table

@@ -15,7 +15,7 @@ from helpers import QUIET, run_config
 @pytest.fixture
 def quiet_run(tmp_path):
     """quiet_run(*overrides, name="run") -> the folder tmp_path / name of the run of the config
-    composed with `overrides` (experiments.run.run_from_config, in this process), without the
+    composed with `overrides` (experiments.launch.run_from_config, in this process), without the
     Rerun recording or the progress bar: its frames, states, summary and config."""
 
     def run(*overrides: str, name: str = "run"):

@@ -32,7 +32,7 @@ from cloth.core.material import Material
 from cloth.core.mesh import grid_mesh, merge_meshes
 from cloth.simulation import Simulation
 from experiments.build import build_buckling, build_camera, build_remesher, build_simulation, command_line_wins
-from experiments.run import run_from_config
+from experiments.launch import run_from_config
 
 ROOT = Path(__file__).resolve().parents[1]  # the repository
 CONF = str(ROOT / "conf")  # Hydra's config directory (an absolute path, as initialize_config_dir wants)

@@ -17,7 +17,7 @@ import pytest
 from helpers import FRAME_TIME_S, write_run
 
 from experiments import aggregate, tables
-from experiments.aggregate import RunFolderWarning, load_runs, table1
+from experiments.analysis.aggregate import RunFolderWarning, load_runs, table1
 
 PAPER_TIMINGS = Path(__file__).resolve().parents[2] / "shared" / "paper-timings"
 # The paper prints times and speed-ups to 0.01: a value computed from its records may differ from
@@ -327,7 +327,7 @@ def test_pareto_front_tells_runs_apart_window_by_window(tmp_path):
     """Runs restarted from the same states share their windows: a run whose error is lower in
     every window is told apart by the paired interval even where the windows' spread (the
     dance's phase) makes the unpaired intervals overlap."""
-    from experiments.sync import bootstrap_interval, paired_difference_interval
+    from experiments.analysis.sync import bootstrap_interval, paired_difference_interval
     from paper_figures.pareto import pareto_table
 
     base = np.array([1.0, 3.0, 5.0, 7.0, 9.0])
@@ -371,7 +371,7 @@ def test_the_fixed_mesh_of_adaptives_quality_is_the_coarsest_not_told_apart_as_w
     assert t["equal_quality"].to_dict() == {"fixed x0.5": False, "fixed x0.7": False, "adaptive": False,
                                             "fixed x1.4": True, "fixed x2": False}
     # Table 1 names it with its error (the mean of its windows, base + 0.1) beside adaptive's (base: 5)
-    from experiments.aggregate import table1, table1_runs
+    from experiments.analysis.aggregate import table1, table1_runs
     from paper_figures.table1 import baseline_notes
 
     runs = load_runs([tmp_path]).runs

@@ -12,7 +12,7 @@ from helpers import run_module
 
 from cloth.collision.obstacles import CapsuleUnion
 from cloth.io.states import save_state
-from experiments.check_crossings import check_run, frame_list, main
+from experiments.analysis.check_crossings import check_run, frame_list, main
 
 # Distances and lengths of unit-size triangles in float64 (a closest point, a square root): a few
 # ulps, far below any cloth feature. Obstacle meshes are stored in float32, so their distances

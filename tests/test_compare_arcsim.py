@@ -17,7 +17,7 @@ from cloth.core.mesh import grid_mesh
 from cloth.eval.surface import bounding_box_difference, centroid_pattern, surface_distance, surface_samples
 from cloth.io import arcsim_output as arcsim
 from cloth.io.states import load_state, save_state
-from experiments.compare_arcsim import main, parse_frames, ranges
+from experiments.analysis.compare_arcsim import main, parse_frames, ranges
 
 # Distances of a 1 m sheet in float64 (closest point on a triangle, a square root): a few ulps of
 # the coordinates, far below any cloth feature.

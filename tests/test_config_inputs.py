@@ -14,7 +14,7 @@ from helpers import MEASURED_JSON, QUIET, compose_config, run_config, run_module
 from omegaconf import OmegaConf
 
 from experiments.build import ConfigError, build, build_simulation, resolved_record
-from experiments.run import RESOLVED
+from experiments.launch import RESOLVED
 
 # What Hydra writes into a run folder before the run starts: the config it composed (.hydra/)
 # and its log file (empty: nothing is logged before the config is checked).

@@ -352,7 +352,7 @@ def _scaling_runs(root):
 
 
 def test_the_crowd_scaling_table_gives_the_speed_up_at_each_crowd_size(tmp_path):
-    from experiments.aggregate import load_runs, table1, table1_runs
+    from experiments.analysis.aggregate import load_runs, table1, table1_runs
     from paper_figures import crowd_scaling
 
     root = tmp_path / "runs"

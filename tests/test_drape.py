@@ -98,7 +98,7 @@ def test_scene_parameters_of_the_drape_test_are_checked():
 
 
 def test_drape_table_says_whether_compensation_moves_toward_the_fine_mesh(tmp_path):
-    from experiments.aggregate import load_runs
+    from experiments.analysis.aggregate import load_runs
     from paper_figures.ablations import drape
 
     n = 12
@@ -131,7 +131,7 @@ def test_drape_table_says_whether_compensation_moves_toward_the_fine_mesh(tmp_pa
 
 
 def test_the_standing_dancer_records_her_hem_and_the_table_compares_it_with_the_fine_reference(tmp_path):
-    from experiments.aggregate import load_runs
+    from experiments.analysis.aggregate import load_runs
     from experiments.build import ConfigError
     from paper_figures.ablations import standing
 

@@ -19,7 +19,7 @@ from cloth.io.checkpoint import CHECKPOINT_DIR, remove_checkpoint, save_checkpoi
 from cloth.runner import read_journal
 from cloth.signals import Terminated, sigterm_interrupts
 from experiments import resume as resume_mod
-from experiments.run import run_from_config
+from experiments.launch import run_from_config
 
 NO_OUTPUT = (*QUIET, "output.states_every=0")
 START_TIMEOUT_S = 180.0  # generous: the run's start (imports, numba's cache) on a loaded machine

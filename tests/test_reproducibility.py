@@ -23,7 +23,7 @@ from cloth.runner import read_journal
 from experiments import replay as replay_mod
 from experiments import resume as resume_mod
 from experiments.build import ConfigError
-from experiments.run import run_from_config
+from experiments.launch import run_from_config
 
 NO_OUTPUT = (*QUIET, "output.states_every=0")  # no recording, progress bar or per-frame states
 KILL_TIMEOUT_S = 120.0  # generous bound for the killed run to reach its checkpoint on a loaded machine

@@ -289,7 +289,7 @@ def test_runs_write_a_state_per_frame(runs):
 
 
 def test_accuracy_cli_writes_its_files(runs, tmp_path, capsys):
-    from experiments.accuracy import COLUMNS, main
+    from experiments.analysis.accuracy import COLUMNS, main
 
     run, ref = runs
     run = _copy_with(run, tmp_path / "run")  # the CLI writes its files into the run folder
@@ -313,7 +313,7 @@ def test_accuracy_cli_writes_its_files(runs, tmp_path, capsys):
 
 
 def test_reference_against_itself_has_no_error(runs):
-    from experiments.accuracy import evaluate_run
+    from experiments.analysis.accuracy import evaluate_run
 
     _, ref = runs
     table = evaluate_run(ref, ref, resolution_scale=0.25)
@@ -343,7 +343,7 @@ def _shifted_member(ref: Path, dst: Path, dx: float) -> Path:
 
 
 def test_reference_ensemble_gives_mean_interval_and_chaos_floor(runs, tmp_path, capsys):
-    from experiments.accuracy import FLOOR_SATURATION, evaluate_runs, main
+    from experiments.analysis.accuracy import FLOOR_SATURATION, evaluate_runs, main
 
     run, ref = runs
     members = [ref, _shifted_member(ref, tmp_path / "m1", 0.03), _shifted_member(ref, tmp_path / "m2", -0.03)]
@@ -400,7 +400,7 @@ def test_reference_ensemble_gives_mean_interval_and_chaos_floor(runs, tmp_path, 
     (lambda c: c["scene"]["params"].update(sphere_radius=0.3), r"scene\.params\.sphere_radius differs"),
 ])
 def test_mismatched_reference_is_rejected_before_any_work(runs, tmp_path, capsys, edit, message):
-    from experiments.accuracy import main
+    from experiments.analysis.accuracy import main
 
     run, ref = runs
     run = _copy_with(run, tmp_path / "run")
@@ -413,7 +413,7 @@ def test_mismatched_reference_is_rejected_before_any_work(runs, tmp_path, capsys
 
 
 def test_missing_states_and_short_reference_are_named(runs, tmp_path, capsys):
-    from experiments.accuracy import main
+    from experiments.analysis.accuracy import main
 
     run, ref = runs
     bare = _copy_with(run, tmp_path / "bare")

@@ -11,7 +11,7 @@ from cloth.core.records import PHASES, SIM_PHASES
 from cloth.runner import JOURNAL_FILE, read_journal, run
 from cloth.scenes.registry import build_scene
 from cloth.simulation import Simulation
-from experiments.aggregate import with_sim_seconds
+from experiments.analysis.aggregate import with_sim_seconds
 
 
 def test_sim_s_is_the_sum_of_the_simulation_phases_and_io_is_outside(tmp_path):

@@ -18,7 +18,7 @@ import pytest
 import yaml
 from helpers import ROOT, compose_config, config_choices, run_module
 
-from experiments.run import threads_per_run
+from experiments.launch import threads_per_run
 
 EXPERIMENTS = config_choices("experiment")
 # A tiny multirun: 2 frames of the sheet dropped on a sphere, no recording.
@@ -210,7 +210,7 @@ def test_joblib_multirun_with_study_callback_measures_and_aggregates(tmp_path):
         assert sync["windows"] >= 2 and sync["horizon"] == 1
         if c["reference"]:
             assert sync["sync_error_px_mean"] < 1e-3  # restarted from its own states: its own continuation
-    from experiments.aggregate import load_runs
+    from experiments.analysis.aggregate import load_runs
     loaded = load_runs([sweep])
     assert len(loaded.runs) == 3 and not loaded.problems
     assert (sweep / "figures").is_dir() and any((sweep / "figures").iterdir())

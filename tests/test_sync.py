@@ -242,7 +242,7 @@ def sync_runs(tmp_path_factory):
 
 
 def test_sync_frames_include_the_lead_of_each_cut():
-    from experiments.sync import sync_frames
+    from experiments.analysis.sync import sync_frames
 
     assert sync_frames(30, 10, 8) == [(0, False), (10, False), (20, False)]
     assert sync_frames(30, 10, 8, cut_frames=[12, 40, 3], before_cut=5) == [
@@ -250,7 +250,7 @@ def test_sync_frames_include_the_lead_of_each_cut():
 
 
 def test_sync_cli_measures_each_run_and_the_reference_against_itself_is_zero(sync_runs, tmp_path, capsys):
-    from experiments.sync import COLUMNS, main
+    from experiments.analysis.sync import COLUMNS, main
 
     ref = sync_runs / "ref"
     runs = []
@@ -274,7 +274,7 @@ def test_sync_cli_measures_each_run_and_the_reference_against_itself_is_zero(syn
 
 
 def test_sync_refuses_a_reference_without_restart_data_and_bad_options(sync_runs, tmp_path, capsys):
-    from experiments.sync import main
+    from experiments.analysis.sync import main
 
     ref = tmp_path / "ref"
     shutil.copytree(sync_runs / "ref", ref)

@@ -12,7 +12,7 @@ from helpers import ROOT, module_env
 # different value once the threads have been launched").
 PROBE = """
 import json, os, numba, numpy as np
-from experiments.run import share_cores
+from experiments.launch import share_cores
 share_cores(1)
 @numba.njit(parallel=True, cache=True)
 def total(x):

@@ -1,8 +1,8 @@
 """Table 1 as the paper prints it, and as text: the paper's own numbers, Markdown and LaTeX
 (booktabs) of the Table 1 that experiments.aggregate computes, and the files they go to.
 
-Nothing here reads run folders: the functions take our table (experiments.aggregate.table1:
-the columns of experiments.aggregate.TABLE1_COLUMNS, notes in ``.attrs['notes']``) and the
+Nothing here reads run folders: the functions take our table (experiments.analysis.aggregate.table1:
+the columns of experiments.analysis.aggregate.TABLE1_COLUMNS, notes in ``.attrs['notes']``) and the
 paper's (:func:`paper_table1`). Numbers: counts with thousands separators, times with the paper's
 2 decimals (more when our times per frame are short, see :func:`_time_digits`), speed-ups as
 ``2.39×``; an empty cell for a missing value (NaN).
@@ -98,6 +98,15 @@ def _time_digits(t: pd.DataFrame) -> int:
     """Decimals for times: the paper's 2, more when our times are short (small scale)."""
     m = t["time_min_s"].min() if len(t) else 1.0
     return 2 if m >= 1 else 3 if m >= 0.01 else 4
+
+
+def markdown(t: pd.DataFrame) -> str:
+    """A DataFrame as a Markdown table, floats to 3 significant digits (the stability suite's and
+    compare_modes' tables)."""
+    fmt = lambda v: f"{v:.3g}" if isinstance(v, float) else str(v)  # noqa: E731
+    lines = ["| " + " | ".join(t.columns) + " |", "|" + "---|" * len(t.columns)]
+    lines += ["| " + " | ".join(fmt(v) for v in row) + " |" for row in t.itertuples(index=False)]
+    return "\n".join(lines) + "\n"
 
 
 def _md_table(header: list[str], rows: list[list[str]], align: str) -> str:

@@ -1,0 +1,234 @@
+"""Re-synchronised short-horizon error: what coarsening costs on screen, with chaos taken out.
+
+    python -m experiments.sync RUN_DIR [RUN_DIR ...] --reference REF_DIR [--every 10] [--horizon 8]
+                               [--before-cut 5] [--resolution-scale 0.5]
+
+A swirling skirt is chaotic: two runs that differ by round-off follow unrelated trajectories
+within about a second, so the error of a whole run against a reference soon measures "two
+different skirts" for every mode alike. Here every run instead restarts, at each *sync frame*,
+from the reference's own state (positions, velocities, material coordinates:
+cloth.simulation.Simulation.restart_from; a remeshing mode remeshes it on its first frame, a
+fixed mesh takes it by interpolation in material space), runs ``--horizon`` H frames with its
+own mode and settings, and is compared with the reference's own continuation from that state
+(the reference run's state H frames later) by material correspondence: where the run puts the
+cloth the reference shows (cloth.eval.correspondence). The sync frames are 0, every, 2 every, ...
+and ``--before-cut`` frames before each camera cut (what anticipation is for), as long as the
+window ends within the run.
+
+The run folder's config.yaml says how to build the run (its mode and settings); nothing of the
+run's own trajectory is used, so a run of any length can be evaluated. The reference needs
+per-frame states with restart data (written by this code's runner with output.states_every=1)
+at every sync frame and every window's end. Writes into each RUN_DIR:
+
+* ``sync.parquet``: one row per window: sync_frame, frame (its end), before_cut (a window
+  ending just after a cut's lead), sync_error_px, sync_error_p90_px, sync_samples, faces_mean
+  (the run's faces over the window's frames), sim_s (its simulation time per frame) and
+  diverged (the window stopped: its error is NaN);
+* ``sync.json``: ``sync_error_px_mean`` with its 90 % bootstrap interval over the windows
+  (``sync_error_px_lo`` / ``_hi``, BOOTSTRAP resamples, seeded), ``sync_error_px_cut_mean``
+  (windows before a cut), ``sim_s_mean``, ``faces_mean``, ``windows``, ``every``, ``horizon``,
+  ``before_cut``, ``reference``, ``resolution_scale`` and ``definition``.
+
+Refused before any work, with one message (exit code 2): a run of another scene, camera or
+frame time than the reference, a crowd, a reference without restart states where they are needed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from omegaconf import OmegaConf
+
+from cloth.eval import correspondence
+from cloth.eval.correspondence import correspondence_error
+from cloth.eval.screenspace import render_state
+from cloth.io.manifest import write_json_atomic, write_parquet_atomic
+from cloth.io.states import StateError, load_state, require_restart
+from cloth.simulation import SimulationDiverged
+from experiments.analysis.accuracy import BOOTSTRAP, AccuracyError, check_configs, state_files
+from experiments.analysis.accuracy import bootstrap_mean_interval as bootstrap_interval  # over windows here
+from experiments.build import ConfigError, build_simulation, camera_path, crowd_size
+
+EVERY, HORIZON, BEFORE_CUT = 10, 8, 5  # frames: the issue's defaults
+RESOLUTION_SCALE = 0.5  # rendered image / camera image: samples every 2 camera pixels (distances stay in camera px)
+COLUMNS = ("sync_frame", "frame", "before_cut", "sync_error_px", "sync_error_p90_px", "sync_samples", "faces_mean",
+           "sim_s", "diverged")
+
+
+def definition() -> str:
+    doc = correspondence.__doc__
+    start = doc.index("Definition (version")
+    return doc[start:].strip().replace(":data:`DEFINITION_VERSION`", correspondence.DEFINITION_VERSION)
+
+
+def sync_frames(frames: int, every: int, horizon: int, cut_frames=(), before_cut: int = BEFORE_CUT):
+    """[(sync frame, before_cut)] of a run of `frames` frames: 0, every, 2 every, ... and
+    `before_cut` frames before each cut frame, each with its window [s, s + horizon] within the run."""
+    out = {s: False for s in range(0, frames - horizon + 1, every)}
+    for c in cut_frames:
+        s = int(c) - before_cut
+        if 0 <= s and s + horizon <= frames:
+            out[s] = True
+    return sorted(out.items())
+
+
+def _cut_frames(path, frame_time: float) -> list[int]:
+    return [int(round(c / frame_time)) for c in getattr(path, "cuts", ())]
+
+
+def plan(run_dir: Path, ref_dir: Path, every: int, horizon: int, before_cut: int):
+    """(config, camera path, [(sync frame, before_cut)]) of a run; AccuracyError names what is wrong."""
+    check_configs(run_dir, ref_dir)
+    cfg = OmegaConf.load(run_dir / "config.yaml")
+    if crowd_size(cfg) is not None:
+        raise AccuracyError(f"{run_dir}: a crowd run; the re-synchronised error restarts one character "
+                            f"(run it on solo_dancer or karate)")
+    path = camera_path(cfg)
+    ref_cfg = OmegaConf.load(ref_dir / "config.yaml")
+    frames = min(int(cfg.frames), int(ref_cfg.frames))
+    sim, _ = build_simulation(cfg)  # every config check, before any work
+    windows = sync_frames(frames, every, horizon, _cut_frames(path, sim.scene.frame_time), before_cut)
+    if not windows:
+        raise AccuracyError(f"{run_dir}: no window of {horizon} frames fits in {frames} frames")
+    states = state_files(ref_dir)
+    need = sorted({s for s, _ in windows} | {s + horizon for s, _ in windows})
+    missing = [f for f in need if f not in states]
+    if missing:
+        raise AccuracyError(f"{ref_dir}: the reference has no state for frames {missing[:5]} "
+                            f"({len(missing)} of the {len(need)} the windows need); run it with output.states_every=1")
+    for f in need:  # the starts to restart from, the ends to compare with (material coordinates)
+        try:
+            require_restart(load_state(states[f][0]), states[f][0])
+        except StateError as exc:
+            raise AccuracyError(str(exc)) from None
+    return cfg, path, windows
+
+
+def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, before_cut: int = BEFORE_CUT,
+                 resolution_scale: float = RESOLUTION_SCALE, log=None) -> pd.DataFrame:
+    """The windows of one run against the reference (COLUMNS, one row per window); writes nothing."""
+    run_dir, ref_dir = Path(run_dir), Path(ref_dir)
+    cfg, path, windows = plan(run_dir, ref_dir, every, horizon, before_cut)
+    states = state_files(ref_dir)
+    rows = []
+    for s, cut in windows:
+        t0 = time.perf_counter()
+        sim, _ = build_simulation(cfg)
+        sim.restart_from(load_state(states[s][0]))
+        faces, sim_s, diverged = [], 0.0, False
+        try:
+            for _ in range(horizon):
+                rec = sim.advance_frame()
+                faces.append(rec["faces"])
+                sim_s += rec["sim_s"]
+        except SimulationDiverged:
+            diverged = True
+        row = {"sync_frame": s, "frame": s + horizon, "before_cut": cut, "faces_mean": float(np.mean(faces or [0])),
+               "sim_s": sim_s / max(len(faces), 1), "diverged": diverged,
+               "sync_error_px": math.nan, "sync_error_p90_px": math.nan, "sync_samples": 0}
+        if not diverged:
+            ref = load_state(states[s + horizon][0])
+            camera = path.camera_at(ref["time"])
+            image = render_state(camera, ref, resolution_scale)
+            mesh = sim.mesh
+            run = {"node_x": mesh.node_x, "vert_u": mesh.vert_u, "vert_node": mesh.vert_node,
+                   "face_verts": mesh.face_verts}
+            row.update(correspondence_error(camera, image, ref, run))
+        rows.append(row)
+        if log:
+            log(f"  {run_dir.name}: window {s}..{s + horizon}{' (before a cut)' if cut else ''}: "
+                f"{row['sync_error_px']:.2f} px, {row['faces_mean']:.0f} faces, "
+                f"{time.perf_counter() - t0:.1f} s")
+    return pd.DataFrame(rows, columns=list(COLUMNS))
+
+
+def paired_difference_interval(a, b, resamples: int = BOOTSTRAP, seed: int = 0) -> tuple[float, float]:
+    """90 % bootstrap interval of the mean of a - b over windows both have (pandas Series indexed
+    by sync frame, or arrays of equal length): two runs restarted from the same states are
+    compared window by window, so the phase of the dance (which sets how large every run's error
+    is) cancels. (nan, nan) without a common finite window."""
+    if isinstance(a, pd.Series) and isinstance(b, pd.Series):
+        a, b = a.align(b, join="inner")
+    d = np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64)
+    return bootstrap_interval(d, resamples, seed)
+
+
+def read_windows(run_dir) -> pd.Series | None:
+    """sync_error_px of a run folder's sync.parquet indexed by sync_frame (None without one)."""
+    f = Path(run_dir) / "sync.parquet"
+    if not f.is_file():
+        return None
+    try:
+        t = pd.read_parquet(f, columns=["sync_frame", "sync_error_px"])
+    except (OSError, ValueError, KeyError):
+        return None
+    return t.set_index("sync_frame")["sync_error_px"].astype(float)
+
+
+def summarize(table: pd.DataFrame, ref_dir, every, horizon, before_cut, resolution_scale) -> dict:
+    err = table["sync_error_px"].to_numpy(dtype=np.float64)
+    ok = np.isfinite(err)
+    lo, hi = bootstrap_interval(err)
+    cut = table["before_cut"].to_numpy(bool) & ok
+    nan_or = lambda a: float(np.mean(a)) if a.size else None  # noqa: E731
+    return {"sync_error_px_mean": nan_or(err[ok]), "sync_error_px_lo": None if math.isnan(lo) else lo,
+            "sync_error_px_hi": None if math.isnan(hi) else hi, "sync_error_px_cut_mean": nan_or(err[cut]),
+            "sim_s_mean": nan_or(table["sim_s"].to_numpy(float)),
+            "faces_mean": nan_or(table["faces_mean"].to_numpy(float)),
+            "windows": int(len(table)), "windows_diverged": int(table["diverged"].sum()),
+            "every": int(every), "horizon": int(horizon), "before_cut": int(before_cut),
+            "reference": str(Path(ref_dir).resolve()), "resolution_scale": float(resolution_scale),
+            "definition": definition()}
+
+
+def write_sync(run_dir, table: pd.DataFrame, ref_dir, every=EVERY, horizon=HORIZON, before_cut=BEFORE_CUT,
+               resolution_scale=RESOLUTION_SCALE) -> dict:
+    """sync.parquet and sync.json into `run_dir` (atomically); returns the summary."""
+    summary = summarize(table, ref_dir, every, horizon, before_cut, resolution_scale)
+    write_parquet_atomic(Path(run_dir) / "sync.parquet", table)
+    write_json_atomic(Path(run_dir) / "sync.json", summary)
+    return summary
+
+
+def check_options(every: int, horizon: int, before_cut: int, resolution_scale: float) -> None:
+    for name, v, lo in (("every", every, 1), ("horizon", horizon, 1), ("before-cut", before_cut, 0)):
+        if not (isinstance(v, int) and v >= lo):
+            raise AccuracyError(f"--{name} must be an integer >= {lo}, got {v!r}")
+    if not (isinstance(resolution_scale, (int, float)) and math.isfinite(resolution_scale) and resolution_scale > 0):
+        raise AccuracyError(f"--resolution-scale must be a number > 0, got {resolution_scale!r}")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m experiments.sync", description=__doc__.split("\n")[0])
+    ap.add_argument("runs", nargs="+", metavar="RUN_DIR", help="run folders to evaluate (their config.yaml)")
+    ap.add_argument("--reference", required=True, metavar="REF_DIR",
+                    help="the reference run (states with restart data)")
+    ap.add_argument("--every", type=int, default=EVERY, help="frames between sync frames")
+    ap.add_argument("--horizon", type=int, default=HORIZON, help="frames simulated from each sync frame (H)")
+    ap.add_argument("--before-cut", type=int, default=BEFORE_CUT, help="a sync frame this many frames before each cut")
+    ap.add_argument("--resolution-scale", type=float, default=RESOLUTION_SCALE,
+                    help="rendered image / camera image (distances stay in camera pixels)")
+    args = ap.parse_args(argv)
+    try:
+        check_options(args.every, args.horizon, args.before_cut, args.resolution_scale)
+        for d in args.runs:  # every run checked before any work
+            plan(Path(d), Path(args.reference), args.every, args.horizon, args.before_cut)
+    except (AccuracyError, ConfigError) as exc:
+        print(f"sync error: {exc}", file=sys.stderr)
+        return 2
+    for d in args.runs:
+        table = evaluate_run(d, args.reference, args.every, args.horizon, args.before_cut, args.resolution_scale,
+                             log=print)
+        s = write_sync(d, table, args.reference, args.every, args.horizon, args.before_cut, args.resolution_scale)
+        fmt = lambda v: "n/a" if v is None else f"{v:.3g}"  # noqa: E731
+        print(f"{d}: {s['windows']} windows  sync error {fmt(s['sync_error_px_mean'])} px "
+              f"(90% {fmt(s['sync_error_px_lo'])}-{fmt(s['sync_error_px_hi'])})  sim {fmt(s['sim_s_mean'])} s/frame "
+              f"-> {Path(d) / 'sync.parquet'}")
+    return 0
+
