@@ -56,6 +56,7 @@ from experiments.checks import (
 # Re-exported: where the entry points and tests import them (module docstring).
 from experiments.checks import ConfigError as ConfigError
 from experiments.checks import command_line_wins as command_line_wins
+from experiments.checks import plain_experiment as plain_experiment
 from experiments.resolved import resolved_record as resolved_record
 
 IMPLEMENTED_MODES = ("nonadaptive", "adaptive", "viewdep")

@@ -183,6 +183,15 @@ def override_keys(overrides) -> list[str]:
     return keys
 
 
+def plain_experiment(overrides) -> list[str]:
+    """`overrides` with ``+experiment=NAME`` and ``++experiment=NAME`` written ``experiment=NAME``.
+    conf/config.yaml lists the experiment group (``experiment: null``), so that
+    ``experiment=NAME`` picks a study preset; Hydra refuses to append (+) a group the defaults
+    list already holds, and the appending form is how studies were run before (the README's
+    ``-m +experiment=NAME``): both forms keep working."""
+    return [re.sub(r"^\+{1,2}(experiment=)", r"\1", str(a)) for a in overrides]
+
+
 def command_line_wins(cfg: DictConfig, overrides) -> DictConfig:
     """`cfg` with the scale preset (scene.scales.<scale>, and its reference preset) giving way to
     what the command line (`overrides`, HydraConfig's overrides.task) sets:

@@ -13,7 +13,7 @@ none), ``ablation_buckling`` (the drape test) and ``ablation_buckling_dancer`` (
 Others on request (``--studies``), among them ``crowd_scaling`` (beyond the paper: adaptive and
 view-dependent crowds of 1, 10 and 100 dancers; hours at scale=small, see docs/studies.md).
 
-Runs each study as a Hydra multirun (``python -m experiments.run -m +experiment=<study>``, joblib
+Runs each study as a Hydra multirun (``python -m experiments.run experiment=<study>``, joblib
 launcher, ``--jobs`` runs at a time: one by default, so that timed runs never compete) into
 ``<out>/<study>/``; every study's multirun ends with the study callback (experiments.callbacks),
 which measures each run's screen-space error against the study's fine nonadaptive reference run
@@ -69,7 +69,7 @@ TABLE1_STILLS_EVERY = 50
 def study_command(study: str, out: Path, scale: str, jobs: int, frames: int | None, extra=(),
                   folder: str | None = None) -> list[str]:
     """The Hydra multirun command of one study (into out/<folder or study>)."""
-    cmd = [sys.executable, "-m", "experiments.run", "-m", f"+experiment={study}", f"scale={scale}",
+    cmd = [sys.executable, "-m", "experiments.run", f"experiment={study}", f"scale={scale}",
            f"hydra.sweep.dir={out / (folder or study)}", f"hydra.launcher.n_jobs={jobs}"]
     if frames is not None:
         cmd.append(f"frames={frames}")

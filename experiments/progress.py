@@ -22,6 +22,8 @@ from hydra import compose, initialize_config_dir
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import OmegaConf
 
+from experiments.checks import plain_experiment
+
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
 # The longest the watch stays silent while a study runs or evaluates (the issue's bound: a minute).
 HEARTBEAT_S = 60.0
@@ -30,14 +32,14 @@ POLL_S = 5.0
 
 
 def planned_runs(study: str, overrides=()) -> int | None:
-    """The number of runs of ``python -m experiments.run -m +experiment=STUDY OVERRIDES``: the
+    """The number of runs of ``python -m experiments.run experiment=STUDY OVERRIDES``: the
     product of the lengths of its sweeper's parameter lists. None when the sweep cannot be
     expanded here (the watch then counts without a total)."""
     sweeps = [o for o in overrides if o.startswith("hydra.sweeper.params.")]
     plain = [o for o in overrides if not o.startswith("hydra.")]
     try:
         with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-            cfg = compose(config_name="config", overrides=[f"+experiment={study}", *plain],
+            cfg = compose(config_name="config", overrides=[f"experiment={study}", *plain_experiment(plain)],
                           return_hydra_config=True)
         params = OmegaConf.to_container(cfg.hydra.sweeper.params, resolve=True) or {}
         for o in sweeps:  # the job's own choice of a swept list (table1's scenes)

@@ -34,7 +34,7 @@ from omegaconf import DictConfig
 from cloth.scenes.registry import CROWDS
 from cloth.signals import Terminated, sigterm_interrupts
 from cloth.simulation import SimulationDiverged
-from experiments.build import ConfigError, command_line_wins
+from experiments.build import ConfigError, command_line_wins, plain_experiment
 from experiments.launch import run_from_config, share_cores
 
 # The config tree, as an absolute path: `cloth-run` (a console script) imports this module as
@@ -114,7 +114,7 @@ def unknown_choice(overrides: list[str], conf_dir: Path = CONF_DIR) -> str | Non
                 continue
             if not (conf_dir / group / f"{choice}.yaml").is_file():
                 known = sorted(str(p.relative_to(conf_dir / group).with_suffix(""))
-                               for p in (conf_dir / group).rglob("*.yaml"))
+                               for p in (conf_dir / group).rglob("*.yaml") if not p.name.startswith("_"))
                 return f"{group}: unknown {group} {choice!r}; known: {', '.join(known)}"
     return None
 
@@ -124,7 +124,8 @@ def unwritable_run_dir(argv: list[str], conf_dir: Path = CONF_DIR) -> str | None
     be created or written, or None. Checked before Hydra composes: Hydra makes the folder before
     the run starts and would stop with a traceback. The folder's fixed part (up to its first
     ${...}) is checked: its nearest existing ancestor must be a writable folder."""
-    multirun = any(a in ("-m", "--multirun") for a in argv)
+    # a study preset (experiment=NAME) is a multirun of its own (conf/experiment/_base.yaml)
+    multirun = any(a in ("-m", "--multirun") or a.startswith("experiment=") for a in plain_experiment(argv))
     key = "hydra.sweep.dir" if multirun else "hydra.run.dir"
     given = [a.split("=", 1)[1] for a in argv if re.fullmatch(rf"\+{{0,2}}{re.escape(key)}=.*", a)]
     if given:
@@ -146,6 +147,7 @@ def unwritable_run_dir(argv: list[str], conf_dir: Path = CONF_DIR) -> str | None
 def cli() -> None:
     """The command line (`python -m experiments.run`, `cloth-run`): a mistyped choice or a run
     folder that cannot be made stops with one config error line, before Hydra composes."""
+    sys.argv[1:] = plain_experiment(sys.argv[1:])  # +experiment=NAME, the form before, still works
     problem = unknown_choice(sys.argv[1:]) or unwritable_run_dir(sys.argv[1:])
     if problem:
         print(f"config error: {problem}", file=sys.stderr)

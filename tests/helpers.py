@@ -31,7 +31,14 @@ from cloth.collision.untangle import find_intersections
 from cloth.core.material import Material
 from cloth.core.mesh import grid_mesh, merge_meshes
 from cloth.simulation import Simulation
-from experiments.build import build_buckling, build_camera, build_remesher, build_simulation, command_line_wins
+from experiments.build import (
+    build_buckling,
+    build_camera,
+    build_remesher,
+    build_simulation,
+    command_line_wins,
+    plain_experiment,
+)
 from experiments.launch import run_from_config
 
 ROOT = Path(__file__).resolve().parents[1]  # the repository
@@ -54,13 +61,15 @@ QUIET = ("output.rerun=false", "output.progress=false")
 # ---- configs -------------------------------------------------------------------------------
 
 def config_choices(group: str) -> list[str]:
-    """The options of a config group: the names of conf/<group>/*.yaml, sorted."""
-    return sorted(p.stem for p in (ROOT / "conf" / group).glob("*.yaml"))
+    """The options of a config group: the names of conf/<group>/*.yaml, sorted, without the
+    shared bases (a leading underscore: conf/experiment/_base.yaml is not a study)."""
+    return sorted(p.stem for p in (ROOT / "conf" / group).glob("*.yaml") if not p.stem.startswith("_"))
 
 
 def compose_config(*overrides: str, return_hydra_config: bool = False) -> DictConfig:
     """conf/config.yaml composed with `overrides` (Hydra's command-line syntax), the command line
     winning over the scale preset as in experiments.run (experiments.build.command_line_wins)."""
+    overrides = plain_experiment(overrides)  # +experiment=NAME as the command line takes it (experiments.run.cli)
     with initialize_config_dir(config_dir=CONF, version_base="1.3"):
         cfg = compose(config_name="config", overrides=list(overrides), return_hydra_config=return_hydra_config)
     return command_line_wins(cfg, overrides)

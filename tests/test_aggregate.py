@@ -16,7 +16,7 @@ import pandas as pd
 import pytest
 from helpers import FRAME_TIME_S, write_run
 
-from experiments import aggregate, tables
+from experiments.analysis import aggregate, tables
 from experiments.analysis.aggregate import RunFolderWarning, load_runs, table1
 
 PAPER_TIMINGS = Path(__file__).resolve().parents[2] / "shared" / "paper-timings"

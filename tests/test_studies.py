@@ -29,9 +29,12 @@ REPEATS_SWEEP = "range(0,${repeats})"  # every preset's seed sweep: repeats=N ru
 
 
 def _sweep(experiment: str) -> dict:
-    """The preset's swept keys and values, but its seeds (REPEATS_SWEEP, checked on its own)."""
-    preset = yaml.safe_load((ROOT / "conf" / "experiment" / f"{experiment}.yaml").read_text())
-    params = preset["hydra"]["sweeper"]["params"]
+    """The preset's swept keys and values (with what its _base sweeps), but its seeds
+    (REPEATS_SWEEP, checked on its own)."""
+    from omegaconf import OmegaConf
+
+    cfg = compose_config(f"experiment={experiment}", return_hydra_config=True)
+    params = OmegaConf.to_container(cfg.hydra.sweeper.params, resolve=False)
     assert params.get("seed") == REPEATS_SWEEP, f"{experiment}: the seeds come from `repeats`"
     return {k: [v.strip() for v in str(vals).split(",")] for k, vals in params.items() if k != "seed"}
 
@@ -56,6 +59,31 @@ def test_presets_are_the_issue_s_studies():
     assert cfg.baseline == "nonadaptive" and cfg.points == "nonadaptive,adaptive,viewdep,viewdep_nofloor"
 
 
+@pytest.mark.parametrize("experiment", EXPERIMENTS)
+def test_experiment_name_and_the_older_plus_form_are_one_multirun(experiment):
+    """`experiment=NAME` picks the preset from conf/config.yaml's defaults and is a multirun by
+    itself (its _base); `+experiment=NAME`, the form before, is rewritten to it by the command
+    line (experiments.checks.plain_experiment), since Hydra refuses to append a listed group."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from experiments.checks import plain_experiment
+
+    assert plain_experiment([f"+experiment={experiment}", f"++experiment={experiment}", "+point=x"]) == \
+        [f"experiment={experiment}", f"experiment={experiment}", "+point=x"]
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=[f"experiment={experiment}"], return_hydra_config=True)
+        with pytest.raises(Exception, match="experiment"):  # what plain_experiment spares the user
+            compose(config_name="config", overrides=[f"+experiment={experiment}"])
+    assert str(cfg.hydra.mode) == "RunMode.MULTIRUN" and cfg.study is not None
+    assert cfg.hydra.callbacks.study._target_ == "experiments.callbacks.StudyCallback"
+    assert OmegaConf.to_container(cfg.hydra.sweeper.params, resolve=False)["seed"] == REPEATS_SWEEP
+    assert not cfg.output.progress and not cfg.output.rerun
+    assert yaml.safe_load((ROOT / "conf" / "experiment" / f"{experiment}.yaml").read_text())["defaults"][0] == "_base"
+    plus = compose_config(f"+experiment={experiment}")  # the helper takes the older form as the command line does
+    assert OmegaConf.to_container(plus) == OmegaConf.to_container(compose_config(f"experiment={experiment}"))
+
+
 def test_accuracy_study_has_a_reference_ensemble_and_the_anticipation_sweep():
     """The main job's accuracy study: a reference ensemble of five members (the issue's "at least
     5 seeds"), the fixed mesh at four resolutions, and the anticipation window swept (the
@@ -78,7 +106,8 @@ def test_a_preset_that_measures_accuracy_against_a_reference_saves_states(experi
     save them, or the callback fails at the end of the study (the dancer's buckling ablation did,
     in the main job)."""
     preset = yaml.safe_load((ROOT / "conf" / "experiment" / f"{experiment}.yaml").read_text())
-    accuracy = preset["hydra"]["callbacks"]["study"].get("accuracy", True)
+    study = compose_config(f"experiment={experiment}", return_hydra_config=True).hydra.callbacks.study
+    accuracy = study.get("accuracy", True)
     has_reference = any("reference" in values for values in _sweep(experiment).values())
     if experiment == "table1":  # its points come from the accuracy study's baseline, no reference
         assert not any("reference" in p for p in preset["points"].split(","))
@@ -253,7 +282,7 @@ def test_main_job_warms_the_kernel_cache_before_any_study(tmp_path, monkeypatch)
 
     def fake_call(cmd, **kwargs):
         calls.append(cmd)
-        return 1 if "+experiment=accuracy" in cmd else 0
+        return 1 if "experiment=accuracy" in cmd else 0
 
     monkeypatch.setattr(paper.subprocess, "call", fake_call)
     rc = paper.main(["--out", str(tmp_path), "--studies", "table1", "accuracy"])
@@ -261,11 +290,11 @@ def test_main_job_warms_the_kernel_cache_before_any_study(tmp_path, monkeypatch)
     assert calls[0][:3] == paper.WARMUP[:3] and calls[0][-1] == f"hydra.run.dir={tmp_path / 'warmup'}"
     # the accuracy study first (whatever the order asked), then table1 in two parts: the single
     # characters with 3 repeats, the crowd once, 2 characters at a time
-    assert "+experiment=accuracy" in calls[1] and "hydra.launcher.n_jobs=1" in calls[1]
-    assert "+experiment=table1" in calls[2] and "hydra.sweeper.params.scene='karate,solo_dancer'" in calls[2]
+    assert "experiment=accuracy" in calls[1] and "hydra.launcher.n_jobs=1" in calls[1]
+    assert "experiment=table1" in calls[2] and "hydra.sweeper.params.scene='karate,solo_dancer'" in calls[2]
     assert "repeats=3" in calls[2] and f"hydra.sweep.dir={tmp_path / 'table1'}" in calls[2]
     assert f"output.stills_every={paper.TABLE1_STILLS_EVERY}" in calls[2]  # the report's stills of each mode
-    assert "+experiment=table1" in calls[3] and "hydra.sweeper.params.scene='multiple_dancers'" in calls[3]
+    assert "experiment=table1" in calls[3] and "hydra.sweeper.params.scene='multiple_dancers'" in calls[3]
     assert "repeats=1" in calls[3] and f"hydra.sweep.dir={tmp_path / 'table1_crowd'}" in calls[3]
     # the accuracy study failed: no equal-quality mesh, the preset's fixed mesh
     assert "baseline=nonadaptive" in calls[2] and "baseline=nonadaptive" in calls[3]
@@ -273,7 +302,7 @@ def test_main_job_warms_the_kernel_cache_before_any_study(tmp_path, monkeypatch)
     assert points in calls[2] and points in calls[3]
     assert calls[4][2] == "paper_figures"
     for part in (calls[2], calls[3]):  # each part composes, and sweeps what it says
-        cfg = compose_config(*[a for a in part[4:] if not a.startswith("hydra.sweep.dir")], return_hydra_config=True)
+        cfg = compose_config(*[a for a in part[3:] if not a.startswith("hydra.sweep.dir")], return_hydra_config=True)
         assert cfg.study == "table1" and cfg.hydra.sweeper.params.scene in ("karate,solo_dancer", "multiple_dancers")
         assert cfg.points == "nonadaptive,adaptive,viewdep,viewdep_nofloor"
     overrides = [a for a in paper.WARMUP[3:]]
@@ -321,10 +350,11 @@ def test_table1_baseline_is_the_accuracy_study_s_equal_quality_mesh(tmp_path):
 
 
 def test_a_preset_runs_as_a_multirun_and_its_callback_aggregates(tmp_path):
-    """An experiment preset end to end (2 frames): its points run through the default launcher,
-    the study callback measures them against the reference and writes the study's figures."""
+    """An experiment preset end to end (2 frames): `experiment=NAME` alone is a multirun
+    (conf/experiment/_base.yaml), its points run through the default launcher, the study callback
+    measures them against the reference and writes the study's figures."""
     sweep = tmp_path / "sweep"
-    proc = run_module("experiments.run", "-m", "+experiment=ablation_anticipation", "frames=2",
+    proc = run_module("experiments.run", "experiment=ablation_anticipation", "frames=2",  # a multirun without -m
                       "hydra.callbacks.study.sync.horizon=1",  # the preset's 8-frame windows do not fit in 2
                       f"hydra.sweep.dir={sweep}", timeout=900)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
