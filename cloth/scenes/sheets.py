@@ -41,6 +41,17 @@ def hanging_sheet(material: Material, *, resolution: int = 20, size: float = 1.0
                  handles=[Handle(corners, Static())])
 
 
+def _on_sphere_and_ground(name, mesh, material, effects, sphere_radius, frame_time, steps_per_frame,
+                          thickness, friction) -> Scene:
+    """The Scene of cloth `mesh` above the ground (z = 0) and a sphere of `sphere_radius` resting on
+    it at the origin (sheet_on_sphere, layered_sheets)."""
+    obstacles = [Plane(point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0)),
+                 Sphere(center=(0.0, 0.0, sphere_radius), radius=sphere_radius)]
+    return Scene(name=name, mesh=mesh, material=material, effects=frozenset(effects),
+                 frame_time=frame_time, steps_per_frame=steps_per_frame,
+                 obstacles=obstacles, thickness=thickness, friction=friction)
+
+
 def sheet_on_sphere(material: Material, *, resolution: int = 24, size: float = 1.0, drop_height: float = 0.75,
                     sphere_radius: float = 0.25, thickness: float = 0.005, friction: float = 0.3,
                     frame_time: float = 0.04, steps_per_frame: int = 8, jitter: float = 1e-4, seed: int = 0,
@@ -52,11 +63,8 @@ def sheet_on_sphere(material: Material, *, resolution: int = 24, size: float = 1
     n = int(resolution)
     mesh = grid_mesh(size, size, n, n, origin=(-size / 2, -size / 2, drop_height))
     _jitter(mesh, jitter, seed)
-    obstacles = [Plane(point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0)),
-                 Sphere(center=(0.0, 0.0, sphere_radius), radius=sphere_radius)]
-    return Scene(name=name, mesh=mesh, material=material, effects=frozenset(effects),
-                 frame_time=frame_time, steps_per_frame=steps_per_frame,
-                 obstacles=obstacles, thickness=thickness, friction=friction)
+    return _on_sphere_and_ground(name, mesh, material, effects, sphere_radius, frame_time, steps_per_frame,
+                                 thickness, friction)
 
 
 def flag(material: Material, *, resolution: int = 24, width: float = 1.5, height: float = 1.0,
@@ -105,11 +113,8 @@ def layered_sheets(material: Material, *, resolution: int = 12, size: float = 0.
               for k in range(int(layers))]
     mesh = merge_meshes(sheets)
     _jitter(mesh, jitter, seed)
-    obstacles = [Plane(point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0)),
-                 Sphere(center=(0.0, 0.0, sphere_radius), radius=sphere_radius)]
-    return Scene(name=name, mesh=mesh, material=material, effects=frozenset(effects),
-                 frame_time=frame_time, steps_per_frame=steps_per_frame,
-                 obstacles=obstacles, thickness=thickness, friction=friction)
+    return _on_sphere_and_ground(name, mesh, material, effects, sphere_radius, frame_time, steps_per_frame,
+                                 thickness, friction)
 
 
 def crushed_sheet(material: Material, *, resolution: int = 24, length: float = 0.8, width: float = 0.25,
