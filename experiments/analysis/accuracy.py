@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from omegaconf import OmegaConf
+from scipy import stats
 from tqdm import tqdm
 
 from cloth.eval import screenspace, visible
@@ -63,6 +64,9 @@ COLUMNS = ("frame", "error_px", "silhouette_px", "surface_px", "cloth_px_run", "
            "offscreen_distance_m", *ENSEMBLE_COLUMNS, "popping_px", *visible.STATISTICS)
 VISIBLE_COLUMNS = ("shot", "statistic", "frames", "run", "members_mean", "members_spread", "distance")
 BOOTSTRAP = 2000  # resamples for the 90 % intervals (seeded: the same numbers every time)
+# Values within this relative spread are one value to the bootstrap (round-off of a constant difference:
+# (x + 0.9) - (x + 1.0) differs from -0.1 in the last bits, by x)
+SAME_VALUES_REL = 1e-12
 # The floor has saturated at the first frame where it reaches this fraction of its largest value:
 # from there on, two members of the ensemble are as different as two unrelated runs of the scene.
 FLOOR_SATURATION = 0.9
@@ -224,14 +228,20 @@ def _shot(path, t: float) -> int:
 
 
 def bootstrap_mean_interval(values, resamples: int = BOOTSTRAP, seed: int = 0) -> tuple[float, float]:
-    """90 % percentile-bootstrap interval of the mean of `values` (NaN left out; (nan, nan) if none)."""
+    """90 % BCa bootstrap interval of the mean of `values` (scipy.stats.bootstrap, seeded; NaN left
+    out; (nan, nan) if none). Values that all agree to SAME_VALUES_REL (one value, or the
+    window-by-window differences of two runs a constant apart) give (mean, mean): BCa's
+    acceleration is undefined there, and every resample has that mean."""
     v = np.asarray(values, dtype=np.float64)
     v = v[np.isfinite(v)]
     if v.size == 0:
         return math.nan, math.nan
-    rng = np.random.default_rng(seed)
-    means = v[rng.integers(0, v.size, size=(resamples, v.size))].mean(axis=1)
-    return float(np.percentile(means, 5)), float(np.percentile(means, 95))
+    mean = float(v.mean())
+    if np.ptp(v) <= SAME_VALUES_REL * max(1.0, abs(mean)):
+        return mean, mean
+    res = stats.bootstrap((v,), np.mean, confidence_level=0.9, n_resamples=resamples, method="BCa",
+                          random_state=np.random.default_rng(seed))
+    return float(res.confidence_interval.low), float(res.confidence_interval.high)
 
 
 def evaluate_runs(run_dirs, ref_dir, resolution_scale: float = 1.0) -> list[pd.DataFrame]:

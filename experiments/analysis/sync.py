@@ -24,7 +24,7 @@ at every sync frame and every window's end. Writes into each RUN_DIR:
   ending just after a cut's lead), sync_error_px, sync_error_p90_px, sync_samples, faces_mean
   (the run's faces over the window's frames), sim_s (its simulation time per frame) and
   diverged (the window stopped: its error is NaN);
-* ``sync.json``: ``sync_error_px_mean`` with its 90 % bootstrap interval over the windows
+* ``sync.json``: ``sync_error_px_mean`` with its 90 % BCa bootstrap interval over the windows (scipy.stats.bootstrap)
   (``sync_error_px_lo`` / ``_hi``, BOOTSTRAP resamples, seeded), ``sync_error_px_cut_mean``
   (windows before a cut), ``sim_s_mean``, ``faces_mean``, ``windows``, ``every``, ``horizon``,
   ``before_cut``, ``reference``, ``resolution_scale`` and ``definition``.
@@ -149,7 +149,7 @@ def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, b
 
 
 def paired_difference_interval(a, b, resamples: int = BOOTSTRAP, seed: int = 0) -> tuple[float, float]:
-    """90 % bootstrap interval of the mean of a - b over windows both have (pandas Series indexed
+    """90 % BCa bootstrap interval (paired: of the mean of a - b) over windows both have (pandas Series indexed
     by sync frame, or arrays of equal length): two runs restarted from the same states are
     compared window by window, so the phase of the dance (which sets how large every run's error
     is) cancels. (nan, nan) without a common finite window."""
