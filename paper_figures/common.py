@@ -18,6 +18,7 @@ import pandas as pd  # noqa: E402
 from cloth.io.manifest import atomic_write, write_text_atomic  # noqa: E402
 from experiments.analysis.aggregate import latest, report_problems  # noqa: E402
 from experiments.analysis.runs import AggregateError, RunSet, check_roots, load_runs  # noqa: E402
+from experiments.analysis.tables import md_table  # noqa: E402
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = REPO_ROOT / "results" / "paper_figures"
@@ -75,9 +76,8 @@ def write_table(df: pd.DataFrame, out_dir, stem: str, title: str, floatfmt: str 
             return "" if math.isnan(v) else floatfmt.format(v)
         return str(v)
 
-    lines = [f"# {title}", "", "| " + " | ".join(df.columns) + " |",
-             "| " + " | ".join("---" for _ in df.columns) + " |"]
-    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in df.itertuples(index=False)]
+    rows = [[cell(v) for v in row] for row in df.itertuples(index=False)]
+    lines = [f"# {title}", "", md_table(list(df.columns), rows)]
     csv, md = out_dir / f"{stem}.csv", out_dir / f"{stem}.md"
     write_text_atomic(csv, df.to_csv(index=False))
     write_text_atomic(md, "\n".join(lines) + "\n")

@@ -32,6 +32,7 @@ import pandas as pd
 
 from cloth.io.manifest import write_text_atomic
 from experiments.analysis.aggregate import Problem, disagreement, is_default_variant, latest
+from experiments.analysis.tables import md_table
 
 from .common import RunSet, Skip, script_main
 
@@ -118,18 +119,18 @@ def crowd_scaling_markdown(t: pd.DataFrame) -> str:
     out = ["# Crowd scaling: the view-dependent speed-up over adaptive against the crowd's size", ""]
     header = ["scale", "dancers", "frames", "runs", "adaptive s/frame", "view-dep. s/frame", "adaptive s/frame/dancer",
               "view-dep. s/frame/dancer", "adaptive faces", "view-dep. faces", "speed-up (range)", "grows"]
-    out += ["| " + " | ".join(header) + " |", "| " + " | ".join(["---"] * 2 + ["---:"] * 10) + " |"]
+    rows = []
     for r in t.itertuples():
         speed = _num(r.speedup, "{:.2f}×")
         if speed and r.repeats > 1:
             speed += f" ({r.speedup_lo:.2f}–{r.speedup_hi:.2f})"
         grows = "" if r.speedup_grows is None else ("yes" if r.speedup_grows else "no")
-        out.append("| " + " | ".join([str(r.scale), str(r.dancers), str(r.frames), str(r.repeats),
-                                      _num(r.adaptive_s, "{:.3f}"), _num(r.viewdep_s, "{:.3f}"),
-                                      _num(r.adaptive_per_character_s, "{:.3f}"),
-                                      _num(r.viewdep_per_character_s, "{:.3f}"), _num(r.adaptive_faces, "{:,.0f}"),
-                                      _num(r.viewdep_faces, "{:,.0f}"), speed, grows]) + " |")
-    out.append("")
+        rows.append([str(r.scale), str(r.dancers), str(r.frames), str(r.repeats),
+                     _num(r.adaptive_s, "{:.3f}"), _num(r.viewdep_s, "{:.3f}"),
+                     _num(r.adaptive_per_character_s, "{:.3f}"),
+                     _num(r.viewdep_per_character_s, "{:.3f}"), _num(r.adaptive_faces, "{:,.0f}"),
+                     _num(r.viewdep_faces, "{:,.0f}"), speed, grows])
+    out += [md_table(header, rows, "ll" + "r" * 10), ""]
     for scale, v in t.attrs.get("verdict", {}).items():
         sizes = t[t["scale"] == scale]
         path = " → ".join(f"{d}: {_num(s, '{:.2f}×') or '?'}" for d, s in zip(sizes["dancers"], sizes["speedup"]))

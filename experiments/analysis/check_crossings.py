@@ -61,6 +61,7 @@ from cloth.io.manifest import write_json_atomic, write_text_atomic
 from cloth.io.states import StateError, load_state
 from experiments.analysis.accuracy import state_files
 from experiments.analysis.compare_arcsim import CompareError, parse_frames, ranges, run_records
+from experiments.analysis.tables import md_table
 
 DEFAULT_OUT = "check_crossings"
 COLUMNS = ("frame", "time_s", "faces", "self_pairs", "self_length_m", "obstacle_pairs", "obstacle_length_m",
@@ -218,13 +219,12 @@ def report_row(run_dir: Path) -> dict:
 def write_report(path: Path, run_dirs, command: str) -> None:
     """A Markdown page of the runs' checks (one row per run), stamped with the date and command."""
     rows = pd.DataFrame([report_row(d) for d in run_dirs], columns=list(REPORT_COLUMNS))
-    head = "| " + " | ".join(rows.columns) + " |\n|" + "---|" * len(rows.columns) + "\n"
-    body = "".join("| " + " | ".join(str(v) for v in r) + " |\n" for r in rows.itertuples(index=False))
+    table = md_table(list(rows.columns), rows.itertuples(index=False)) + "\n"
     clean = int(rows["clean"].sum())
     text = (f"# Crossing checks\n\n{datetime.now():%Y-%m-%d}: `{command}`\n\n"
             f"{clean} of {len(rows)} runs clean: no saved state after frame 0 with cloth crossing itself or an "
             "obstacle, and no frame whose records say crossings were left (experiments.check_crossings).\n\n"
-            + head + body)
+            + table)
     write_text_atomic(Path(path), text)
 
 

@@ -100,19 +100,22 @@ def _time_digits(t: pd.DataFrame) -> int:
     return 2 if m >= 1 else 3 if m >= 0.01 else 4
 
 
-def markdown(t: pd.DataFrame) -> str:
-    """A DataFrame as a Markdown table, floats to 3 significant digits (the stability suite's and
-    compare_modes' tables)."""
-    fmt = lambda v: f"{v:.3g}" if isinstance(v, float) else str(v)  # noqa: E731
-    lines = ["| " + " | ".join(t.columns) + " |", "|" + "---|" * len(t.columns)]
-    lines += ["| " + " | ".join(fmt(v) for v in row) + " |" for row in t.itertuples(index=False)]
-    return "\n".join(lines) + "\n"
-
-
-def _md_table(header: list[str], rows: list[list[str]], align: str) -> str:
-    lines = ["| " + " | ".join(header) + " |", "| " + " | ".join("---:" if a == "r" else "---" for a in align) + " |"]
-    lines += ["| " + " | ".join(r) + " |" for r in rows]
+def md_table(header: list[str], rows, align: str = "") -> str:
+    """The one Markdown table writer of the harness: `header`, then `rows` (lists of cells, made
+    strings here), columns aligned by `align` ('l' or 'r' per column; left where it is short).
+    No trailing newline."""
+    align = align.ljust(len(header), "l")
+    lines = ["| " + " | ".join(str(h) for h in header) + " |",
+             "| " + " | ".join("---:" if a == "r" else "---" for a in align[:len(header)]) + " |"]
+    lines += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
     return "\n".join(lines)
+
+
+def markdown(t: pd.DataFrame) -> str:
+    """A DataFrame as a Markdown table (md_table), floats to 3 significant digits (the stability
+    suite's and compare_modes' tables)."""
+    fmt = lambda v: f"{v:.3g}" if isinstance(v, float) else str(v)  # noqa: E731
+    return md_table(list(t.columns), [[fmt(v) for v in row] for row in t.itertuples(index=False)]) + "\n"
 
 
 def _with_range(v: str, lo: str, hi: str, repeats) -> str:
@@ -160,7 +163,7 @@ def table1_markdown(ours: pd.DataFrame, paper: pd.DataFrame | None = None) -> st
     paper = paper_table1() if paper is None else paper
     out = ["## Table 1: this project", ""]
     if len(ours):
-        out.append(_md_table(*_ours_cells(ours)))
+        out.append(md_table(*_ours_cells(ours)))
     else:
         out.append("(no runs)")
     out += ["", "Time per frame in seconds of simulation (sizing, remeshing, physics, solve, collisions: the "
@@ -173,7 +176,7 @@ def table1_markdown(ours: pd.DataFrame, paper: pd.DataFrame | None = None) -> st
     for n in ours.attrs.get("problems", []):
         out.append(f"- refused: {n}")
     out += ["", f"## Table 1: the paper ({PAPER_SOURCE}; 4 threads of a Xeon E5-2680 v2)", "",
-            _md_table(*_paper_cells(paper)), ""]
+            md_table(*_paper_cells(paper)), ""]
     sbs = side_by_side(ours, paper)
     if len(sbs):
         d = _time_digits(ours)
@@ -181,7 +184,7 @@ def table1_markdown(ours: pd.DataFrame, paper: pd.DataFrame | None = None) -> st
                  ("", r.mode) else ""), _int(r.faces_mean), _int(r.faces_mean_paper),
                  _sec(r.time_mean_s, d), _sec(r.time_mean_s_paper, 2), _x(r.speedup), _x(r.speedup_paper)]
                 for r in sbs.itertuples()]
-        out += ["## Side by side (means)", "", _md_table(
+        out += ["## Side by side (means)", "", md_table(
             ["scene", "scale", "mode", "faces (ours)", "faces (paper)", "s/frame (ours)", "s/frame (paper)",
              "speed-up (ours)", "speed-up (paper)"], rows, "lllrrrrrr"), ""]
     ratios = face_ratios(ours, paper)
@@ -190,7 +193,7 @@ def table1_markdown(ours: pd.DataFrame, paper: pd.DataFrame | None = None) -> st
                 ("", r.mode) else ""), f"{r.faces_ratio:.2f}", "" if math.isnan(r.faces_ratio_paper) else
                 f"{r.faces_ratio_paper:.2f}"] for r in ratios.itertuples()]
         out += ["## Mean faces over the adaptive run's (nonadaptive : adaptive : view-dependent)", "",
-                _md_table(["scene", "scale", "mode", "ours", "paper"], rows, "lllrr"), ""]
+                md_table(["scene", "scale", "mode", "ours", "paper"], rows, "lllrr"), ""]
     return "\n".join(out) + "\n"
 
 
