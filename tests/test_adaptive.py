@@ -36,6 +36,7 @@ def test_initial_remesh_refines_a_coarse_input_to_its_sizing():
     assert sim.mesh.n_faces > 8
 
 
+@pytest.mark.slow
 def test_nonadaptive_never_remeshes_and_adaptive_rebuilds_only_after_a_remesh(monkeypatch):
     calls = {"n": 0}
     original = Simulation.rebuild
@@ -100,6 +101,7 @@ def test_refinement_concentrates_where_the_cloth_folds(draped):
     assert density_rim > density_flat, (density_rim, density_flat)
 
 
+@pytest.mark.slow
 def test_remeshing_a_resting_draped_sheet_makes_no_pop(draped):
     sim = draped
     ke0 = sim.state_record()["kinetic_energy_j"]
@@ -123,6 +125,7 @@ def test_remeshing_a_resting_draped_sheet_makes_no_pop(draped):
     ("flag", ["scene.scales.small.sizing.size_min=0.08", "scene.scales.small.resolution=12"]),
     ("sheet_on_sphere", []),
 ])
+@pytest.mark.slow
 def test_long_adaptive_runs_stay_finite_and_outside_obstacles(scene, overrides):
     sim = build_sim(ADAPTIVE, f"scene={scene}", *overrides)
     for _ in range(200):
@@ -225,6 +228,7 @@ def _refine_on_sphere(seed, monkeypatch, rounds, rings):
     return sim.advance_frame()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1])
 def test_refining_coarse_cloth_on_the_sphere_alternates_pop_filter_and_push_out(seed, monkeypatch):
     """Refining 0.4 m faces draped on the 0.25 m sphere puts the new midpoints inside it by up to

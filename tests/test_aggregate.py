@@ -433,6 +433,7 @@ def _study_runs(root: Path) -> None:
                   accuracy_frames={"frame": [1, 2, 3, 4], "error_px": [1.0] * 4, "offscreen_distance_m": [off] * 4})
 
 
+@pytest.mark.slow
 def test_paper_figures_write_every_expected_file(tmp_path, capsys):
     from paper_figures.__main__ import main as figures_main
     from paper_figures.ablations import CUT_WINDOW_FRAMES

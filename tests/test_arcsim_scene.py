@@ -19,6 +19,8 @@ from cloth.scenes.arcsim import arcsim_remesher_overrides, arcsim_scene
 from cloth.scenes.bodies import icosphere
 from experiments.build import ConfigError, build_simulation
 
+pytestmark = pytest.mark.slow  # the quick tier, pytest -m "not slow", leaves this module out
+
 FRAME_TIME = 0.04  # s, the constructed scene's frame (ARCSim's 25 fps)
 ROUNDOFF_M = 1e-9  # m, positions compared after a few float operations
 # A node may sit this far inside the contact thickness at the end of a frame (the projection leaves

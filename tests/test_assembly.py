@@ -214,6 +214,7 @@ print(float(np.abs(sim.mesh.node_x).sum()).hex())
 """
 
 
+@pytest.mark.slow
 @needs_cholesky
 def test_the_factorization_gives_the_same_bits_on_one_and_two_threads():
     """MKL's conditional numerical reproducibility: a crowd's character (one thread in a worker)

@@ -54,6 +54,7 @@ def _bounds(x, rest, w):
     return FORCE_BOUND * w * (d + d * d) / scale, HESSIAN_BOUND * w * (1 + d) / scale ** 2
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("project", PROJECTIONS)
 def test_the_issues_hinge_stays_bounded_as_a_face_collapses_and_flips(project):
     g_bound, H_bound = _bounds(_hinge(1e-3), 0.0, WEIGHT)

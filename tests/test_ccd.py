@@ -33,6 +33,7 @@ def test_point_triangle_closest_against_sampling():
         assert abs(np.linalg.norm(p - (w0 * a + w1 * b + w2 * c)) - d) < 1e-12
 
 
+@pytest.mark.slow
 def test_segment_segment_closest_against_sampling():
     rng = np.random.default_rng(4)
     s = np.linspace(0, 1, 801)

@@ -18,6 +18,8 @@ from cloth.scenes.character import (
     make_motion,
 )
 
+pytestmark = pytest.mark.slow  # the quick tier, pytest -m "not slow", leaves this module out
+
 ROUNDOFF = 1e-9
 # The capsule velocities are central differences over 1e-4 s; over a 1e-3 s window the mean
 # velocity (from positions) agrees with them to (accel + jerk) x step^2 ~ 1e-4 m/s.

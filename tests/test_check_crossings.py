@@ -53,6 +53,7 @@ def save(run, frame, mesh, obstacles=()):
     save_state(run / "states" / f"frame_{frame:05d}.npz", mesh, frame, 0.04 * frame, obstacles)
 
 
+@pytest.mark.slow
 def test_a_triangle_through_the_cloth_is_one_pair_of_the_hand_computed_length(tmp_path):
     both = cloth(np.vstack([CLOTH, THROUGH]), [[0, 1, 2], [3, 4, 5]])
     save(tmp_path, 1, both)
@@ -161,6 +162,7 @@ def test_bad_inputs_are_named_before_any_work(tmp_path, capsys, make, frames, me
     assert not (run / "check_crossings").exists()
 
 
+@pytest.mark.slow
 def test_the_command_line(tmp_path):
     save(tmp_path, 3, cloth(CLOTH, [[0, 1, 2]]), [sphere()])
     done = run_module("experiments.check_crossings", str(tmp_path))

@@ -262,6 +262,7 @@ def test_bad_inputs_stop_with_one_message_before_any_work(constructed, tmp_path,
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_cli_writes_its_three_files_and_prints_the_table(constructed, tmp_path):
     a_out, run = constructed
     r = run_module("experiments.compare_arcsim", str(a_out), str(run), timeout=120)

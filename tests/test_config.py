@@ -11,6 +11,8 @@ from hydra.errors import MissingConfigException
 from cloth.view.paths import StaticPath
 from experiments.build import ConfigError, build_camera, build_simulation
 
+pytestmark = pytest.mark.slow  # the quick tier, pytest -m "not slow", leaves this module out
+
 SCENES = config_choices("scene")
 MATERIALS = config_choices("material")
 SOLVERS = config_choices("solver")

@@ -142,6 +142,7 @@ def _assert_refused(code, err, key, run_dir):
         assert not (run_dir / "run.log").exists() or (run_dir / "run.log").read_text() == ""
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("args, key", BAD, ids=[" ".join(a) for a, _ in BAD])
 def test_a_bad_input_is_one_line_naming_its_key_exit_2_and_nothing_written(args, key, tmp_path, monkeypatch,
                                                                           capsys):
@@ -151,6 +152,7 @@ def test_a_bad_input_is_one_line_naming_its_key_exit_2_and_nothing_written(args,
     _assert_refused(code, err, key, run_dir)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("args, key", [BAD[0], BAD[2], BAD[11]], ids=["size_min", "obj_every", "run_dir"])
 def test_a_bad_input_in_a_new_process(args, key, tmp_path):
     run_dir = tmp_path / "run"

@@ -25,6 +25,8 @@ from cloth.scenes.registry import crowd_columns, crowd_placement
 from cloth.view.paths import path_from_config
 from experiments.build import ConfigError, build_camera, crowd_backend, crowd_size
 
+pytestmark = pytest.mark.slow  # the quick tier, pytest -m "not slow", leaves this module out
+
 # Positions are sums and products of a few multiples of the spacing: exact but for round-off.
 ROUNDOFF = 1e-9
 # The crowd's records are sums over its characters of float64 numbers (sim_s, faces): equal to the

@@ -3,9 +3,12 @@ written from the figures of a results root (run folders made by the tests)."""
 
 from __future__ import annotations
 
+import pytest
 from test_aggregate import _study_runs
 
 from paper_figures.docs import GENERATED_MARK, README_BEGIN, README_END
+
+pytestmark = pytest.mark.slow  # the quick tier, pytest -m "not slow", leaves this module out
 
 COMMAND = "python -m experiments.paper --out results/paper/test"
 MACHINE = {"cpu_model": "Test CPU 9000", "cpu_count": 2, "numba_threads": 2, "git_commit": "abc"}

@@ -21,6 +21,8 @@ from cloth.signals import Terminated, sigterm_interrupts
 from experiments import resume as resume_mod
 from experiments.launch import run_from_config
 
+pytestmark = pytest.mark.slow  # the quick tier, pytest -m "not slow", leaves this module out
+
 NO_OUTPUT = (*QUIET, "output.states_every=0")
 START_TIMEOUT_S = 180.0  # generous: the run's start (imports, numba's cache) on a loaded machine
 POLL_S = 0.02

@@ -34,6 +34,8 @@ from cloth.scenes.registry import crowd_placement
 from experiments import build
 from experiments.build import ConfigError, build_simulation
 
+pytestmark = pytest.mark.slow  # the quick tier, pytest -m "not slow", leaves this module out
+
 ROUNDOFF = 1e-9
 # Pinned waistband nodes follow the waist joint exactly; a free node may sit anywhere outside the
 # body. Contact keeps nodes at the thickness (5 mm); at the end of a step a node may be slightly

@@ -321,6 +321,7 @@ def _rel(a, b):
     return np.linalg.norm(a - b) / np.linalg.norm(b)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("alpha", [1.0, 0.3, 0.0])
 @pytest.mark.parametrize("case", range(len(CASES)))
 def test_membrane_gradient_and_hessian_at_fixed_stiffness_match_finite_differences(case, alpha):
@@ -379,6 +380,7 @@ def test_projected_membrane_hessian_is_psd_and_exact_where_already_psd(alpha):
                 assert np.allclose(P, H, atol=PSD_TOL * scale)
 
 
+@pytest.mark.slow
 def test_the_force_holds_the_stiffness_fixed_and_is_not_the_gradient_of_the_looked_up_energy(material):
     """ARCSim's choice: the element's gradient is that of the energy at the stiffness read at the
     current strain, with dk/dx left out; where the stiffness varies with strain, the energy

@@ -3,6 +3,7 @@ tip and a coarse sheet on a sphere that node-based contact lets through, impact 
 rotating obstacle, the CCD slab rejection, the skinned body in solo_dancer."""
 
 import numpy as np
+import pytest
 from helpers import COTTON, after_every_step, build_sim, compose_config
 
 from cloth.collision.ccd import point_triangle_closest
@@ -228,6 +229,7 @@ def test_ccd_slab_rejection_is_exact_on_random_near_misses():
     assert rejected > 100  # the rejection does reject
 
 
+@pytest.mark.slow
 def test_solo_dancer_with_the_skinned_mesh_body_stays_outside_it():
     # small and short: 32 segments around the waist, 8 frames of 0.08 s (16 steps of 5 ms, the
     # scene's step) so that the falling skirt reaches the hips and legs (from about frame 6)

@@ -57,6 +57,7 @@ def _script_command(name: str) -> tuple[list[str], str]:
     return [sys.executable, "-c", LOAD_AND_CALL, name, SCRIPTS[name]], "entry point"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", HELP_SCRIPTS)
 def test_a_script_answers_help_from_another_folder(name, tmp_path):
     command, how = _script_command(name)

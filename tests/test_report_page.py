@@ -72,6 +72,7 @@ def _same(cell: str, value: str) -> bool:
 
 @pytest.mark.skipif(CHROMIUM is None and not os.environ.get("CI"),
                     reason="no chromium here (.ci/run installs it; in CI this test runs)")
+@pytest.mark.slow
 def test_the_report_opens_in_a_browser_with_every_section_image_and_table(tmp_path):
     from paper_figures.__main__ import main as figures_main
 

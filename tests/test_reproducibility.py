@@ -25,6 +25,8 @@ from experiments import resume as resume_mod
 from experiments.build import ConfigError
 from experiments.launch import run_from_config
 
+pytestmark = pytest.mark.slow  # the quick tier, pytest -m "not slow", leaves this module out
+
 NO_OUTPUT = (*QUIET, "output.states_every=0")  # no recording, progress bar or per-frame states
 KILL_TIMEOUT_S = 120.0  # generous bound for the killed run to reach its checkpoint on a loaded machine
 POLL_S = 0.02  # polling interval while waiting for the checkpoint

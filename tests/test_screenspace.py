@@ -342,6 +342,7 @@ def _shifted_member(ref: Path, dst: Path, dx: float) -> Path:
     return dst
 
 
+@pytest.mark.slow
 def test_reference_ensemble_gives_mean_interval_and_chaos_floor(runs, tmp_path, capsys):
     from experiments.analysis.accuracy import FLOOR_SATURATION, evaluate_runs, main
 

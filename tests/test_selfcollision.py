@@ -242,6 +242,7 @@ def test_scene_without_the_effect_never_calls_it(monkeypatch):
     assert rec["self_ccd_hits"] == 0 and rec["time_collisions_s"] >= 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode,camera", [("adaptive", "none"), ("viewdep", "sheet_half")])
 def test_layered_sheets_adaptive_modes_untangle_after_remesh(mode, camera):
     """In the adaptive modes the remesh moves the layers; untangling and CCD keep them apart."""

@@ -20,6 +20,8 @@ from helpers import ROOT, compose_config, config_choices, run_module
 
 from experiments.launch import threads_per_run
 
+pytestmark = pytest.mark.slow  # the quick tier, pytest -m "not slow", leaves this module out
+
 EXPERIMENTS = config_choices("experiment")
 # A tiny multirun: 2 frames of the sheet dropped on a sphere, no recording.
 TINY = ["scene=sheet_on_sphere", "frames=2", "output.rerun=false", "output.progress=false"]

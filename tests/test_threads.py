@@ -4,6 +4,7 @@ import json
 import subprocess
 import sys
 
+import pytest
 from helpers import ROOT, module_env
 
 # share_cores, then kernels numba has never compiled (a cold cache: NUMBA_CACHE_DIR empty), as a
@@ -30,6 +31,7 @@ print(json.dumps({"threads": numba.get_num_threads(), "env": os.environ.get("NUM
 """
 
 
+@pytest.mark.slow
 def test_numba_num_threads_1_with_a_cold_cache_is_honoured_and_runs(tmp_path):
     env = module_env(NUMBA_NUM_THREADS="1", NUMBA_CACHE_DIR=str(tmp_path / "numba_cache"))
     probe = tmp_path / "probe.py"  # a file: numba caches kernels of files only

@@ -68,6 +68,7 @@ def adaptive_at_cut():
     return sim
 
 
+@pytest.mark.slow
 def test_a_static_camera_on_half_the_sheet(adaptive_at_cut):
     sim = build_sim(SPHERE, "mode=viewdep", "camera=sheet_half", MARGIN)
     from cloth.remeshing.adaptive import AdaptiveRemesher
@@ -88,6 +89,7 @@ def test_a_static_camera_on_half_the_sheet(adaptive_at_cut):
     assert last["faces"] < adaptive_at_cut.mesh.n_faces
 
 
+@pytest.mark.slow
 def test_anticipation_refines_before_a_jump_cut():
     """At the first image of the new shot, the newly visible side is resolved to its full sizing."""
     from cloth.remeshing.adaptive import AdaptiveRemesher
@@ -150,6 +152,7 @@ def test_buckling_compensation_sets_alpha_on_out_of_frustum_faces_only():
     assert membrane.alpha[np.flatnonzero(out)[np.argmax(area[out])]] == floor
 
 
+@pytest.mark.slow
 def test_long_viewdep_run_under_an_orbit_with_a_cut_stays_finite_and_outside_obstacles():
     # coarse sizing keeps it short; the orbit turns once a second, the cut comes at frame 30
     sim = build_sim(SPHERE, "mode=viewdep", "camera=orbit_cut", "scene.scales.small.sizing.size_min=0.08",

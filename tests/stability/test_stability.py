@@ -34,6 +34,8 @@ import pytest
 
 from experiments.stability import QUALITY_MIN, SHORT_CASE_NAMES, case, run_case
 
+pytestmark = pytest.mark.slow  # the quick tier, pytest -m "not slow", leaves this module out
+
 # Seeds of the scenes' jitter each case runs with here (python -m experiments.stability: 5): a case
 # that passes for one trajectory and fails for the next says nothing about the method.
 SEEDS = (0, 1)
