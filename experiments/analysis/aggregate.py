@@ -8,7 +8,7 @@ when present, accuracy.json / accuracy.parquet), prints Table 1 and a warning fo
 that cannot be used; with ``--out`` it writes ``runs.csv``, ``frames.parquet`` (every frame of
 every run), ``table1.csv``/``.md``/``.tex``, ``table1_paper.csv`` and ``problems.txt`` there.
 
-Run folders, and what makes a folder one that is skipped: experiments.runs (whose names are
+Run folders, and what makes a folder one that is skipped: experiments.analysis.runs (whose names are
 re-exported here).
 
 Table 1 (:func:`table1`). One row per (scene, scale, mode, variant), made of its repeats: the
@@ -24,7 +24,7 @@ baseline that did. Time per frame is the frame's simulation time ``sim_s`` (sizi
 physics, solve, collisions: the paper's Time/Frame, cloth.core.records.SIM_PHASES; for runs
 recorded before that column, the sum of those phase columns); I/O is its own column
 (``io_mean_s``), never inside it.
-The Markdown and LaTeX of the tables are made by experiments.tables.
+The Markdown and LaTeX of the tables are made by experiments.analysis.tables.
 """
 
 from __future__ import annotations
