@@ -6,7 +6,8 @@ are in tests/conftest.py). A test module imports what it needs from here (`from 
 - simulations: `build_sim` (from overrides), `simulation_in_mode` (a Python-built Scene in one
   of the three modes), `mode_overrides`, `MODES`;
 - runs: `run_config` (a run folder from overrides), `read_frames`, `run_module` (python -m in a
-  new process), `write_run` (a run folder made by hand: what aggregation reads);
+  new process), `write_run` (a run folder made by hand: what aggregation reads), `write_study_runs`
+  (such folders for every study);
 - checks: `after_every_step` (a check after each step of a simulation), `count_crossings`,
   `material_edge_lengths`;
 - small scenes: `COTTON`, `two_sheets`;
@@ -253,3 +254,24 @@ def write_material(path: Path, data: dict | None = None, text: str | None = None
     path = Path(path)
     path.write_text(text if text is not None else json.dumps(MEASURED_JSON if data is None else data))
     return path
+
+
+def write_study_runs(root: Path) -> None:
+    """Run folders of every study under `root`, small and made up (write_run): Table 1, a nu_out
+    sweep with accuracy, both ablations (what the figures, the docs pages and the report read)."""
+    s = "solo_dancer"
+    write_run(root / "t1" / "0_na", s, "nonadaptive", [90] * 4, [50] * 4, [2.0] * 4, variant="nonadaptive")
+    write_run(root / "t1" / "1_ad", s, "adaptive", [40, 50, 60, 50], [25, 30, 35, 30], [1.0] * 4, variant="adaptive")
+    write_run(root / "t1" / "2_vd", s, "viewdep", [10, 20, 30, 20], [8, 13, 18, 13], [0.5] * 4, variant="viewdep")
+    sw = root / "sweep"
+    write_run(sw / "0_ad", s, "adaptive", [50] * 4, [30] * 4, [1.0] * 4, study="sweep_nu_out", variant="adaptive",
+              accuracy={"error_px_mean": 0.5, "offscreen_distance_m_mean": 0.0})
+    for i, (nu, wall, err) in enumerate(((0.001, 0.25, 4.0), (0.01, 0.5, 2.0), (0.1, 0.8, 3.0))):
+        write_run(sw / f"{i + 1}_vd", s, "viewdep", [20] * 4, [12] * 4, [wall] * 4, study="sweep_nu_out",
+                  variant=f"nu_out={nu}", view={"nu_out": nu}, accuracy={"error_px_mean": err})
+    ab = root / "buckling"
+    for i, (bk, off) in enumerate((({}, 0.05), ({"k": 10, "mode": "uniform"}, 0.01), ({"k": 10, "mode": "adaptive"},
+                                                                                         0.02))):
+        write_run(ab / f"{i}_vd", s, "viewdep", [20] * 4, [12] * 4, [0.5] * 4, study="ablation_buckling",
+                  buckling=bk, accuracy={"error_px_mean": 3.0 + i, "offscreen_distance_m_mean": off},
+                  accuracy_frames={"frame": [1, 2, 3, 4], "error_px": [1.0] * 4, "offscreen_distance_m": [off] * 4})

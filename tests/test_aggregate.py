@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from helpers import FRAME_TIME_S, write_run
+from helpers import FRAME_TIME_S, write_run, write_study_runs
 
 from experiments.analysis import aggregate, tables
 from experiments.analysis.aggregate import RunFolderWarning, load_runs, table1
@@ -323,123 +323,13 @@ def test_paper_timings_reproduce_the_papers_table1(tmp_path):
                 assert abs(r[col] - v) <= PRINTED_TOL, f"{scene}/{mode} {col}: {r[col]} != {v}"
 
 
-def test_pareto_front_tells_runs_apart_window_by_window(tmp_path):
-    """Runs restarted from the same states share their windows: a run whose error is lower in
-    every window is told apart by the paired interval even where the windows' spread (the
-    dance's phase) makes the unpaired intervals overlap."""
-    from experiments.analysis.sync import bootstrap_interval, paired_difference_interval
-    from paper_figures.pareto import pareto_table
-
-    base = np.array([1.0, 3.0, 5.0, 7.0, 9.0])
-    frames = [0, 10, 20, 30, 40]
-    for i, (mode, t, shift) in enumerate((("nonadaptive", 1.0, 1.0), ("viewdep", 1.5, 0.9), ("adaptive", 2.0, 0.0))):
-        e = base + shift
-        lo, hi = bootstrap_interval(e)
-        folder = write_run(tmp_path / f"{i}_{mode}", "solo_dancer", mode, [50] * 4, [30] * 4, [t] * 4,
-                           study="accuracy", accuracy={"error_px_mean": 60.0},
-                           sync={"sync_error_px_mean": float(e.mean()), "sync_error_px_lo": lo, "sync_error_px_hi": hi})
-        pd.DataFrame({"sync_frame": frames, "sync_error_px": e}).to_parquet(folder / "sync.parquet", index=False)
-    lo_v, hi_v = paired_difference_interval(pd.Series(base + 0.9, index=frames), pd.Series(base + 1.0, index=frames))
-    assert lo_v == pytest.approx(-0.1) and hi_v == pytest.approx(-0.1)
-    runs = load_runs([tmp_path]).runs
-    t = pareto_table(runs).set_index("mode")
-    assert t["on_front"].all()  # each slower run is lower in every window
-    # without the windows, the intervals overlap: only the fastest is on the front
-    for f in tmp_path.glob("*/sync.parquet"):
-        f.unlink()
-    t = pareto_table(runs).set_index("mode")
-    assert t["on_front"].to_dict() == {"nonadaptive": True, "viewdep": False, "adaptive": False}
-
-
-def test_the_fixed_mesh_of_adaptives_quality_is_the_coarsest_not_told_apart_as_worse(tmp_path):
-    from paper_figures.pareto import pareto_table
-
-    base = np.array([1.0, 3.0, 5.0, 7.0, 9.0])
-    frames = [0, 10, 20, 30, 40]
-    # adaptive: base; fixed meshes 4 px, 1 px (told apart: worse) and +-0.5 px around it (not told apart)
-    cases = (("adaptive", "adaptive", 1.0, 500, base), ("nonadaptive", "fixed x0.5", 0.2, 100, base + 4.0),
-             ("nonadaptive", "fixed x0.7", 0.4, 200, base + 1.0),
-             ("nonadaptive", "fixed x1.4", 1.5, 900, base + np.array([0.5, -0.5, 0.5, -0.5, 0.5])),
-             ("nonadaptive", "fixed x2", 3.0, 1600, base - 0.2))
-    for i, (mode, variant, t, faces, e) in enumerate(cases):
-        folder = write_run(tmp_path / f"{i}", "solo_dancer", mode, [faces] * 4, [faces // 2] * 4, [t] * 4,
-                           study="accuracy", variant=variant, accuracy={"error_px_mean": 60.0},
-                           sync={"sync_error_px_mean": float(e.mean()), "sync_error_px_lo": float(e.mean()) - 3,
-                                 "sync_error_px_hi": float(e.mean()) + 3})
-        pd.DataFrame({"sync_frame": frames, "sync_error_px": e}).to_parquet(folder / "sync.parquet", index=False)
-    t = pareto_table(load_runs([tmp_path]).runs).set_index("variant")
-    assert t["equal_quality"].to_dict() == {"fixed x0.5": False, "fixed x0.7": False, "adaptive": False,
-                                            "fixed x1.4": True, "fixed x2": False}
-    # Table 1 names it with its error (the mean of its windows, base + 0.1) beside adaptive's (base: 5)
-    from experiments.analysis.aggregate import table1, table1_runs
-    from paper_figures.table1 import baseline_notes
-
-    runs = load_runs([tmp_path]).runs
-    notes = baseline_notes(runs, table1(table1_runs(runs)))
-    assert len(notes) == 1 and "is fixed x1.4 (900 faces, 5.1 px (2.1-8.1) against adaptive's 5 px)" in notes[0]
-    assert notes[0].endswith("Table 1's non-adaptive rows of solo_dancer: fixed x0.5, fixed x0.7, fixed x1.4, fixed x2")
-
-
-# ---- the figures -----------------------------------------------------------------------------------
-
-def test_pareto_front_by_hand():
-    from paper_figures.pareto import pareto_front
-    # (time, error): (1, 5) fastest; (2, 3) better error; (3, 4) dominated by (2, 3); (4, 1) best error;
-    # (4, 1) twice: equal points do not dominate each other
-    on = pareto_front([1, 2, 3, 4, 4], [5, 3, 4, 1, 1])
-    assert on.tolist() == [True, True, False, True, True]
-    # with intervals: (2, 3) [2.5, 3.5] is told apart from (1, 5) [4, 6]; (4, 1) [0, 4.5] overlaps
-    # (1, 5)'s interval: not on the front, though no point dominates it
-    on = pareto_front([1, 2, 4], [5, 3, 1], lo=[4, 2.5, 0], hi=[6, 3.5, 4.5])
-    assert on.tolist() == [True, True, False]
-
-
-def test_pareto_table_uses_the_resynchronised_error_and_its_interval(tmp_path):
-    from paper_figures.pareto import pareto_table
-
-    s = "solo_dancer"
-    for i, (mode, t, e, lo, hi) in enumerate((("nonadaptive", 1.0, 4.0, 3.5, 4.5), ("adaptive", 2.0, 2.0, 1.8, 2.2),
-                                              ("viewdep", 1.5, 3.9, 3.0, 4.6))):
-        write_run(tmp_path / f"{i}_{mode}", s, mode, [50] * 4, [30] * 4, [t] * 4, study="accuracy",
-                  accuracy={"error_px_mean": 60.0}, sync={"sync_error_px_mean": e, "sync_error_px_lo": lo,
-                                                          "sync_error_px_hi": hi, "windows": 15, "horizon": 8})
-    runs = load_runs([tmp_path]).runs
-    assert runs["sync_windows"].tolist() == [15, 15, 15] and runs["sync_horizon"].tolist() == [8, 8, 8]
-    t = pareto_table(runs).set_index("mode")
-    assert set(t["error"]) == {"sync_error_px"}
-    assert t.loc["adaptive", "error_px"] == 2.0 and t.loc["adaptive", "error_lo_px"] == 1.8
-    # viewdep is faster than adaptive but its error is not told apart from nonadaptive's, which is faster still
-    assert t["on_front"].to_dict() == {"nonadaptive": True, "viewdep": False, "adaptive": True}
-    assert t.loc["viewdep", "speedup"] == pytest.approx(2.0 / 1.5)
-
-
-def _study_runs(root: Path) -> None:
-    """Folders of every study, small: Table 1, a nu_out sweep with accuracy, both ablations."""
-    s = "solo_dancer"
-    write_run(root / "t1" / "0_na", s, "nonadaptive", [90] * 4, [50] * 4, [2.0] * 4, variant="nonadaptive")
-    write_run(root / "t1" / "1_ad", s, "adaptive", [40, 50, 60, 50], [25, 30, 35, 30], [1.0] * 4, variant="adaptive")
-    write_run(root / "t1" / "2_vd", s, "viewdep", [10, 20, 30, 20], [8, 13, 18, 13], [0.5] * 4, variant="viewdep")
-    sw = root / "sweep"
-    write_run(sw / "0_ad", s, "adaptive", [50] * 4, [30] * 4, [1.0] * 4, study="sweep_nu_out", variant="adaptive",
-              accuracy={"error_px_mean": 0.5, "offscreen_distance_m_mean": 0.0})
-    for i, (nu, wall, err) in enumerate(((0.001, 0.25, 4.0), (0.01, 0.5, 2.0), (0.1, 0.8, 3.0))):
-        write_run(sw / f"{i + 1}_vd", s, "viewdep", [20] * 4, [12] * 4, [wall] * 4, study="sweep_nu_out",
-                  variant=f"nu_out={nu}", view={"nu_out": nu}, accuracy={"error_px_mean": err})
-    ab = root / "buckling"
-    for i, (bk, off) in enumerate((({}, 0.05), ({"k": 10, "mode": "uniform"}, 0.01), ({"k": 10, "mode": "adaptive"},
-                                                                                         0.02))):
-        write_run(ab / f"{i}_vd", s, "viewdep", [20] * 4, [12] * 4, [0.5] * 4, study="ablation_buckling",
-                  buckling=bk, accuracy={"error_px_mean": 3.0 + i, "offscreen_distance_m_mean": off},
-                  accuracy_frames={"frame": [1, 2, 3, 4], "error_px": [1.0] * 4, "offscreen_distance_m": [off] * 4})
-
-
 @pytest.mark.slow
 def test_paper_figures_write_every_expected_file(tmp_path, capsys):
     from paper_figures.__main__ import main as figures_main
     from paper_figures.ablations import CUT_WINDOW_FRAMES
 
     root = tmp_path / "results"
-    _study_runs(root)
+    write_study_runs(root)
     n = 20
     assert 4 + CUT_WINDOW_FRAMES <= n, "the window after the cut must fit in the runs"
     t = np.arange(1, n + 1) * FRAME_TIME_S

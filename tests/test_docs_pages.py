@@ -4,7 +4,7 @@ written from the figures of a results root (run folders made by the tests)."""
 from __future__ import annotations
 
 import pytest
-from test_aggregate import _study_runs
+from helpers import write_study_runs
 
 from paper_figures.docs import GENERATED_MARK, README_BEGIN, README_END
 
@@ -18,7 +18,7 @@ def _figures(tmp_path, readme_text):
     from paper_figures.__main__ import main as figures_main
 
     root = tmp_path / "results"
-    _study_runs(root)
+    write_study_runs(root)
     for manifest in root.rglob("manifest.json"):  # a machine to stamp
         import json
 
@@ -86,7 +86,7 @@ def test_the_index_says_how_the_runs_went_steps_rejected_and_runs_left_out(tmp_p
     from paper_figures.__main__ import main as figures_main
 
     root = tmp_path / "results"
-    _study_runs(root)
+    write_study_runs(root)
     write_run(root / "t1" / "9_vd_rejected", "karate", "viewdep", [20] * 4, [12] * 4, [0.5] * 4,
               variant="viewdep", extra_frames={"steps_rejected": [0, 2, 0, 1]})
     write_run(root / "t1" / "8_diverged", "karate", "adaptive", [20] * 2, [12] * 2, [0.5] * 2, variant="adaptive",

@@ -11,7 +11,7 @@ from html.parser import HTMLParser
 
 import pandas as pd
 import pytest
-from test_aggregate import _study_runs
+from helpers import write_study_runs
 
 from paper_figures.report import SECTION_IDS
 
@@ -78,7 +78,7 @@ def test_the_report_opens_in_a_browser_with_every_section_image_and_table(tmp_pa
 
     assert CHROMIUM is not None, "chromium is not installed: .ci/run installs Debian's package"
     root = tmp_path / "results"
-    _study_runs(root)
+    write_study_runs(root)
     run = root / "t1" / "2_vd"
     (run / "stills").mkdir()
     shutil.copyfile(__import__("pathlib").Path(__file__).resolve().parents[1] / "docs" / "img" / "viewdep_dancer.png",

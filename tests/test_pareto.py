@@ -1,0 +1,102 @@
+"""The Pareto figure's table (paper_figures.pareto) on made-up run folders with hand-computed
+answers: the front told apart window by window (paired intervals), the fixed mesh of adaptive's
+quality, and the re-synchronised error as its error axis."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from helpers import write_run
+
+from experiments.analysis.aggregate import load_runs
+
+
+def test_pareto_front_tells_runs_apart_window_by_window(tmp_path):
+    """Runs restarted from the same states share their windows: a run whose error is lower in
+    every window is told apart by the paired interval even where the windows' spread (the
+    dance's phase) makes the unpaired intervals overlap."""
+    from experiments.analysis.sync import bootstrap_interval, paired_difference_interval
+    from paper_figures.pareto import pareto_table
+
+    base = np.array([1.0, 3.0, 5.0, 7.0, 9.0])
+    frames = [0, 10, 20, 30, 40]
+    for i, (mode, t, shift) in enumerate((("nonadaptive", 1.0, 1.0), ("viewdep", 1.5, 0.9), ("adaptive", 2.0, 0.0))):
+        e = base + shift
+        lo, hi = bootstrap_interval(e)
+        folder = write_run(tmp_path / f"{i}_{mode}", "solo_dancer", mode, [50] * 4, [30] * 4, [t] * 4,
+                           study="accuracy", accuracy={"error_px_mean": 60.0},
+                           sync={"sync_error_px_mean": float(e.mean()), "sync_error_px_lo": lo, "sync_error_px_hi": hi})
+        pd.DataFrame({"sync_frame": frames, "sync_error_px": e}).to_parquet(folder / "sync.parquet", index=False)
+    lo_v, hi_v = paired_difference_interval(pd.Series(base + 0.9, index=frames), pd.Series(base + 1.0, index=frames))
+    assert lo_v == pytest.approx(-0.1) and hi_v == pytest.approx(-0.1)
+    runs = load_runs([tmp_path]).runs
+    t = pareto_table(runs).set_index("mode")
+    assert t["on_front"].all()  # each slower run is lower in every window
+    # without the windows, the intervals overlap: only the fastest is on the front
+    for f in tmp_path.glob("*/sync.parquet"):
+        f.unlink()
+    t = pareto_table(runs).set_index("mode")
+    assert t["on_front"].to_dict() == {"nonadaptive": True, "viewdep": False, "adaptive": False}
+
+
+def test_the_fixed_mesh_of_adaptives_quality_is_the_coarsest_not_told_apart_as_worse(tmp_path):
+    from paper_figures.pareto import pareto_table
+
+    base = np.array([1.0, 3.0, 5.0, 7.0, 9.0])
+    frames = [0, 10, 20, 30, 40]
+    # adaptive: base; fixed meshes 4 px, 1 px (told apart: worse) and +-0.5 px around it (not told apart)
+    cases = (("adaptive", "adaptive", 1.0, 500, base), ("nonadaptive", "fixed x0.5", 0.2, 100, base + 4.0),
+             ("nonadaptive", "fixed x0.7", 0.4, 200, base + 1.0),
+             ("nonadaptive", "fixed x1.4", 1.5, 900, base + np.array([0.5, -0.5, 0.5, -0.5, 0.5])),
+             ("nonadaptive", "fixed x2", 3.0, 1600, base - 0.2))
+    for i, (mode, variant, t, faces, e) in enumerate(cases):
+        folder = write_run(tmp_path / f"{i}", "solo_dancer", mode, [faces] * 4, [faces // 2] * 4, [t] * 4,
+                           study="accuracy", variant=variant, accuracy={"error_px_mean": 60.0},
+                           sync={"sync_error_px_mean": float(e.mean()), "sync_error_px_lo": float(e.mean()) - 3,
+                                 "sync_error_px_hi": float(e.mean()) + 3})
+        pd.DataFrame({"sync_frame": frames, "sync_error_px": e}).to_parquet(folder / "sync.parquet", index=False)
+    t = pareto_table(load_runs([tmp_path]).runs).set_index("variant")
+    assert t["equal_quality"].to_dict() == {"fixed x0.5": False, "fixed x0.7": False, "adaptive": False,
+                                            "fixed x1.4": True, "fixed x2": False}
+    # Table 1 names it with its error (the mean of its windows, base + 0.1) beside adaptive's (base: 5)
+    from experiments.analysis.aggregate import table1, table1_runs
+    from paper_figures.table1 import baseline_notes
+
+    runs = load_runs([tmp_path]).runs
+    notes = baseline_notes(runs, table1(table1_runs(runs)))
+    assert len(notes) == 1 and "is fixed x1.4 (900 faces, 5.1 px (2.1-8.1) against adaptive's 5 px)" in notes[0]
+    assert notes[0].endswith("Table 1's non-adaptive rows of solo_dancer: fixed x0.5, fixed x0.7, fixed x1.4, fixed x2")
+
+
+# ---- the figures -----------------------------------------------------------------------------------
+
+def test_pareto_front_by_hand():
+    from paper_figures.pareto import pareto_front
+    # (time, error): (1, 5) fastest; (2, 3) better error; (3, 4) dominated by (2, 3); (4, 1) best error;
+    # (4, 1) twice: equal points do not dominate each other
+    on = pareto_front([1, 2, 3, 4, 4], [5, 3, 4, 1, 1])
+    assert on.tolist() == [True, True, False, True, True]
+    # with intervals: (2, 3) [2.5, 3.5] is told apart from (1, 5) [4, 6]; (4, 1) [0, 4.5] overlaps
+    # (1, 5)'s interval: not on the front, though no point dominates it
+    on = pareto_front([1, 2, 4], [5, 3, 1], lo=[4, 2.5, 0], hi=[6, 3.5, 4.5])
+    assert on.tolist() == [True, True, False]
+
+
+def test_pareto_table_uses_the_resynchronised_error_and_its_interval(tmp_path):
+    from paper_figures.pareto import pareto_table
+
+    s = "solo_dancer"
+    for i, (mode, t, e, lo, hi) in enumerate((("nonadaptive", 1.0, 4.0, 3.5, 4.5), ("adaptive", 2.0, 2.0, 1.8, 2.2),
+                                              ("viewdep", 1.5, 3.9, 3.0, 4.6))):
+        write_run(tmp_path / f"{i}_{mode}", s, mode, [50] * 4, [30] * 4, [t] * 4, study="accuracy",
+                  accuracy={"error_px_mean": 60.0}, sync={"sync_error_px_mean": e, "sync_error_px_lo": lo,
+                                                          "sync_error_px_hi": hi, "windows": 15, "horizon": 8})
+    runs = load_runs([tmp_path]).runs
+    assert runs["sync_windows"].tolist() == [15, 15, 15] and runs["sync_horizon"].tolist() == [8, 8, 8]
+    t = pareto_table(runs).set_index("mode")
+    assert set(t["error"]) == {"sync_error_px"}
+    assert t.loc["adaptive", "error_px"] == 2.0 and t.loc["adaptive", "error_lo_px"] == 1.8
+    # viewdep is faster than adaptive but its error is not told apart from nonadaptive's, which is faster still
+    assert t["on_front"].to_dict() == {"nonadaptive": True, "viewdep": False, "adaptive": True}
+    assert t.loc["viewdep", "speedup"] == pytest.approx(2.0 / 1.5)
