@@ -12,8 +12,11 @@ table.md (default out: results/stability; one row per case and seed: the checks 
 behind them, and what step control rejected) and cases.md (one row per case: seeds passed). It
 exits 1 unless every run passed. `--report` writes the tables with the commit to a Markdown page
 and the runs beside it (.csv); `--resume` takes such a table and runs only what it lacks, so that
-the paper-scale suite (hours) can run over several sittings. tests/stability/ runs the short
-cases at scale=small for two seeds.
+the paper-scale suite (hours) can run over several sittings. A run in progress is checkpointed
+(<out>/checkpoints/<scale>_<case>_seed<k>_<frames>f, at most CHECKPOINT_WALL_S apart): a suite
+started again with the same --out continues a killed run from its last checkpoint (the row's
+resumed_at_frame and checkpoint_commit say so) unless --fresh is given; a run that ends removes
+its checkpoint. tests/stability/ runs the short cases at scale=small for two seeds.
 
 Each case is a scene and mode with a few overrides:
 
@@ -48,6 +51,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -59,6 +63,7 @@ from omegaconf import open_dict
 
 from cloth.collision.untangle import find_intersections
 from cloth.core.records import STEP_CHECKS
+from cloth.io.checkpoint import CheckpointError, checkpoint_path, load_checkpoint, remove_checkpoint, save_checkpoint
 from cloth.io.manifest import code_version, write_text_atomic
 from experiments.analysis.tables import markdown
 from experiments.build import build_simulation
@@ -78,6 +83,10 @@ PAPER_FRAMES = 100  # frames per run at scale=paper
 FALL_HEIGHT_M = 1.0
 BODY_SPEED_M_S = 12.0
 G = 9.81
+# A run in progress is checkpointed when this much wall time has passed since its start or its last
+# checkpoint: a paper-scale case runs for an hour or more, and its checkpoint (tens of MB, well under
+# a second to write) costs nothing beside five minutes of simulation.
+CHECKPOINT_WALL_S = 300.0
 
 
 @dataclass
@@ -162,19 +171,54 @@ def _cfg(c: Case, scale: str, seed: int = 0):
     return cfg
 
 
-def run_case(c: Case, frames: int, scale: str = "small", seed: int = 0) -> dict:
+def checkpoint_dir(out: Path, c: Case, scale: str, seed: int, frames: int) -> Path:
+    """Where the run of case `c` with `seed` keeps its checkpoint while it runs."""
+    return Path(out) / "checkpoints" / f"{scale}_{c.name}_seed{seed}_{frames}f"
+
+
+def run_case(c: Case, frames: int, scale: str = "small", seed: int = 0, checkpoints: Path | None = None,
+             checkpoint_wall_s: float = CHECKPOINT_WALL_S) -> dict:
     """Run one case with one seed (the scene's jitter); return its checks and figures. Raises
     nothing for a bad run: a run that stops (diverged) is reported with ok = False and the error.
     Beside the checks, what step control did: the steps it rejected (of each kind) and the
-    shortest step it took."""
-    sim = build_simulation(_cfg(c, scale, seed), character=c.character)[0]
-    row = {"case": c.name, "seed": seed, "what": c.what, "frames": frames, "error": ""}
-    records = []
+    shortest step it took.
+
+    With `checkpoints` (a folder), the run is checkpointed there every `checkpoint_wall_s` of wall
+    time, continued from the checkpoint it finds there (the frames before it are not run again;
+    their records come from the checkpoint), and the checkpoint removed when the run ends."""
+    row = {"case": c.name, "seed": seed, "what": c.what, "frames": frames, "error": "",
+           "resumed_at_frame": 0, "checkpoint_commit": ""}
+    sim, records = None, []
+    if checkpoints is not None and checkpoint_path(checkpoints).is_file():
+        try:
+            ckpt = load_checkpoint(checkpoints)
+        except CheckpointError as exc:  # a checkpoint that cannot be continued: say so, start afresh
+            print(f"{c.name} seed {seed}: checkpoint not used, the run starts afresh ({exc})", flush=True)
+        else:
+            sim, records = ckpt.sim, list(ckpt.rows)
+            row["resumed_at_frame"] = ckpt.frame
+            row["checkpoint_commit"] = ckpt.code.get("git_commit", "")
+            print(f"{c.name} seed {seed}: continued from frame {ckpt.frame} (checkpoint of commit "
+                  f"{row['checkpoint_commit'][:12] or 'unknown'})", flush=True)
+    if sim is None:
+        sim = build_simulation(_cfg(c, scale, seed), character=c.character)[0]
+    last_save = time.perf_counter()
     try:
-        for _ in range(frames):
+        while len(records) < frames:
             records.append(sim.advance_frame())
+            if checkpoints is not None and len(records) < frames and \
+                    time.perf_counter() - last_save >= checkpoint_wall_s:
+                save_checkpoint(checkpoints, sim, records)
+                last_save = time.perf_counter()
     except Exception as exc:  # noqa: BLE001 - the record says why the case stopped
         row["error"] = f"{type(exc).__name__}: {exc}"
+    if checkpoints is not None:
+        remove_checkpoint(checkpoints)
+        for folder in (Path(checkpoints), Path(checkpoints).parent):  # the folders, once empty
+            try:
+                folder.rmdir()
+            except OSError:
+                pass
     df = pd.DataFrame(records)
     mesh = sim.mesh
     mass = float(mesh.node_m.sum())
@@ -224,6 +268,8 @@ def main(argv=None) -> None:
     ap.add_argument("--resume", type=Path, default=None,
                     help="a table.csv (or a report's .csv) of an earlier, unfinished suite: its runs at this "
                          "scale and frame count are kept, not run again")
+    ap.add_argument("--fresh", action="store_true",
+                    help="run every case from its first frame, ignoring checkpoints of killed runs in --out")
     args = ap.parse_args(argv)
     if args.seeds < 1:
         ap.error(f"--seeds: must be at least 1, got {args.seeds}")
@@ -247,7 +293,11 @@ def main(argv=None) -> None:
                 rows.append(done[(name, seed)])
                 print(f"{name:20s} seed {seed}  kept from {args.resume}", flush=True)
             else:
-                rows.append({"scale": args.scale, **run_case(c, frames_of[name], args.scale, seed), "commit": commit})
+                ckpt = checkpoint_dir(args.out, c, args.scale, seed, frames_of[name])
+                if args.fresh:
+                    remove_checkpoint(ckpt)
+                rows.append({"scale": args.scale, **run_case(c, frames_of[name], args.scale, seed, ckpt),
+                             "commit": commit})
                 r = rows[-1]
                 print(f"{name:20s} seed {seed}  ok={r['ok']}  steps rejected {r['steps_rejected']}  {r['error']}",
                       flush=True)
@@ -289,7 +339,7 @@ def resumed_rows(path: Path, scale: str, frames_of: dict, seeds: int) -> dict:
 REPORT_COLUMNS = ["case", "seed", "ok", "frames_run", "error", "max_kinetic_energy_j", "kinetic_energy_bound_j",
                   "intersections_left_max", "self_collisions_left_max", "self_collision", "crossings_at_end",
                   "min_face_quality", "faces_max", "steps_rejected", *(f"rejected_{k}" for k in STEP_CHECKS),
-                  "dt_min_s", "s_per_frame", "commit"]
+                  "dt_min_s", "s_per_frame", "commit", "resumed_at_frame", "checkpoint_commit"]
 
 
 def report(header: str, table: pd.DataFrame, runs_planned: int) -> str:

@@ -82,6 +82,34 @@ def test_stability_tool_writes_csv_and_markdown(tmp_path):
     assert "seeds 0-1" in cases and "| one_frame_step | 2 | 2 |" in cases  # seeds run, seeds passed
 
 
+def test_a_killed_stability_run_continues_from_its_checkpoint(tmp_path, monkeypatch):
+    """A run stopped after its checkpoint of frame 2 (as a kill would) leaves it; the next suite
+    continues from it and ends with the figures of a run never stopped, and no checkpoint left."""
+    from experiments import stability
+    c, frames = stability.case("one_frame_step"), 4
+    whole = stability.run_case(c, frames, "small", seed=1)
+    save = stability.save_checkpoint
+
+    def save_then_stop(run_dir, sim, rows):
+        save(run_dir, sim, rows)
+        if sim.frame == 2:
+            raise KeyboardInterrupt  # not an Exception: run_case does not catch it, as with a kill
+
+    folder = stability.checkpoint_dir(tmp_path, c, "small", 1, frames)
+    monkeypatch.setattr(stability, "save_checkpoint", save_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        stability.run_case(c, frames, "small", seed=1, checkpoints=folder, checkpoint_wall_s=0.0)
+    monkeypatch.setattr(stability, "save_checkpoint", save)
+    assert (folder / "checkpoint" / "state.pkl").is_file()
+    resumed = stability.run_case(c, frames, "small", seed=1, checkpoints=folder, checkpoint_wall_s=0.0)
+    assert resumed["resumed_at_frame"] == 2 and whole["resumed_at_frame"] == 0
+    assert resumed["checkpoint_commit"]
+    for key in ("ok", "frames_run", "max_kinetic_energy_j", "min_face_quality", "faces_max", "crossings_at_end",
+                "steps_rejected"):
+        assert resumed[key] == whole[key], key  # bit for bit: the checkpoint holds the whole state
+    assert not (tmp_path / "checkpoints").exists()  # removed, with its folders, when the run ended
+
+
 def test_collision_cost_tabulates_the_share_of_collisions(tmp_path):
     from experiments.collision_cost import main
     main(["--frames", "2", "--resolutions", "6", "10", "--dancer-frames", "2", "--out", str(tmp_path)])
