@@ -78,6 +78,34 @@ def test_obj_errors_name_the_file_and_problem(tmp_path):
         load_obj(bad)
 
 
+def test_quads_in_two_material_groups_become_triangles_of_the_same_area(tmp_path):
+    """Two 1 x 1 quads, one per usemtl group, sharing an edge: trimesh cuts each into two
+    triangles and concatenates the groups; nodes on the shared edge are merged by position."""
+    path = tmp_path / "quads.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nv 2 1 0\n"
+                    "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvt 2 0\nvt 2 1\n"
+                    "usemtl a\nf 1/1 2/2 3/3 4/4\nusemtl b\nf 2/2 5/5 6/6 3/3\n")
+    m = load_obj(path)
+    assert m.n_faces == 4 and m.n_nodes == 6
+    assert m.face_area.sum() == pytest.approx(2.0) and (m.face_area > 0).all()
+    assert np.array_equal(np.unique(m.face_verts), np.arange(m.n_verts))  # every vert in a face
+
+
+def test_garment_lines_are_checked_before_trimesh_reads_them(tmp_path):
+    bad_vt = tmp_path / "bad_vt.obj"
+    bad_vt.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nf 1/1 2/2 3/3\n")
+    with pytest.raises(ObjError, match="bad_vt.obj: a face refers to vt 3, and the file has 2 vt lines"):
+        load_obj(bad_vt)
+    bad_line = tmp_path / "bad_line.obj"
+    bad_line.write_text("v 0 0 0\nv 1 zero 0\n")
+    with pytest.raises(ObjError, match="bad_line.obj: line 2"):
+        load_obj(bad_line)
+    empty = tmp_path / "empty.obj"
+    empty.write_text("v 0 0 0\n")
+    with pytest.raises(ObjError, match="empty.obj: has no faces"):
+        load_obj(empty)
+
+
 def test_clockwise_uv_layout_is_flipped(tmp_path):
     path = tmp_path / "cw.obj"
     path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 3/3 2/2\n")

@@ -26,9 +26,9 @@ are ignored, as ARCSim ignores them; ARCSim's own extension lines (:data:`ARCSIM
 labels, velocities, edges, plastic state) carry state this reader does not support and are an
 error naming the line.
 
-The ``v``/``vt``/``f`` lines are parsed by :func:`cloth.io.obj.read_obj`. Its garment builder
-(:func:`cloth.io.obj.garment_arrays`) does not fit: it numbers vertices as trimesh does and merges
-nodes by position, while ARCSim's handles name nodes by their ``v`` line.
+The ``v``/``vt``/``f`` lines are parsed by :func:`cloth.io.obj.read_obj`. The garment reader
+(:func:`cloth.io.obj.load_obj`, trimesh's OBJ import) does not fit: it numbers vertices as trimesh
+does and merges nodes by position, while ARCSim's handles name nodes by their ``v`` line.
 """
 
 from __future__ import annotations

@@ -3,14 +3,13 @@
 :func:`read_obj` reads the `v`, `vt`, `f` and `usemtl` lines of a file in the file's own
 numbering; the two readers build on it:
 
-* :func:`load_obj`, a cloth mesh with texture coordinates. Positions become nodes and texture
-  coordinates become material coordinates (metres, after a scale), so a garment pattern laid out
-  in UV space imports with its rest shape. There is a vert per distinct (position, texture
-  coordinate) pair; verts at exactly equal positions are merged into one node, which is how seams
-  (one node, two verts) are recovered. Limitation: two distinct OBJ vertices at exactly the same
-  position also become one node. Verts and triangles are numbered as trimesh's OBJ import
-  numbered them (``trimesh.load(path, process=False)``, which this module used until the readers
-  were merged), so that a garment gets the same mesh, bit for bit (see :func:`garment_arrays`).
+* :func:`load_obj`, a cloth mesh with texture coordinates, read by trimesh's OBJ import after
+  :func:`read_obj` has checked its lines (so that every error names the file). Positions become
+  nodes and texture coordinates become material coordinates (metres, after a scale), so a garment
+  pattern laid out in UV space imports with its rest shape. There is a vert per distinct
+  (position, texture coordinate) pair; verts at exactly equal positions are merged into one node,
+  which is how seams (one node, two verts) are recovered. Limitation: two distinct OBJ vertices at
+  exactly the same position also become one node.
 * :func:`read_obj_mesh` and :func:`load_obj_sequence`, positions and triangles only, polygons split
   into fans, in the file's vertex numbering, so that the frames of a sequence compare index by index.
 
@@ -29,7 +28,6 @@ import numpy as np
 import trimesh
 from trimesh.exchange.obj import export_obj
 from trimesh.visual import TextureVisuals
-from trimesh.visual.texture import unmerge_faces
 
 from cloth.collision.meshobstacle import MeshObstacleError
 from cloth.core.mesh import Mesh, MeshError
@@ -118,77 +116,45 @@ def read_obj(path, error: type[Exception] = ObjError, texcoords: bool = False,
                    face_positions=np.asarray(face_positions, dtype=np.int64), face_material=face_material)
 
 
-# ---- cloth meshes ------------------------------------------------------------------------------
-
-# The two triangles, as corner numbers, that trimesh's OBJ import cuts a quad into (not the fan).
-QUAD_SPLIT = ((0, 1, 2), (2, 3, 0))
-
-
 def _fan(n: int) -> list[tuple[int, int, int]]:
     """The triangles of a polygon of n corners as a fan from corner 0, as corner numbers."""
     return [(0, j, j + 1) for j in range(1, n - 1)]
 
 
-def _corner_indices(triangles, k: int) -> np.ndarray:
-    """(T, 3) int64: index k (0: v, 1: vt, 2: vn) of every corner of the triangles, as trimesh uses it."""
-    return np.array([[_trimesh_index(c[k]) for c in t] for t in triangles], dtype=np.int64).reshape(-1, 3)
+# ---- cloth meshes ------------------------------------------------------------------------------
 
-
-def _trimesh_index(i: int) -> int:
-    """An OBJ index as trimesh's OBJ import uses it: 1-based to 0-based; 0 and negative ones as
-    written (numpy then counts a negative one from the end of the whole file's list)."""
-    return i - 1 if i > 0 else i
-
-
-def garment_arrays(obj: ObjFile, path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(vertex positions (n, 3), texture coordinates (n, 2), triangles (F, 3)) of a file read with
-    texcoords: a vertex per distinct (v, vt, vn) of the faces, numbered as trimesh's OBJ import
-    (process=False) numbers them, triangles in its order; ObjError with its messages for a file
-    whose faces refer to a missing vertex or lack texture coordinates.
-
-    That order: the faces are grouped by ``usemtl`` name and the groups taken last first; each
-    group's vertices are numbered by trimesh.visual.texture.unmerge_faces (one per distinct
-    (v, vt[, vn]) of its faces, by position index; vn counts only when every corner has one); its
-    polygons become triangles by fans, except quads: when every polygon of the group is a quad of
-    one layout, all first halves (corners 0 1 2), then all second halves (2 3 0); otherwise each
-    quad in place as (0 1 2), (2 3 0). OBJ indices as :func:`_trimesh_index`."""
-    groups: dict[str | None, list[int]] = {}
-    for i, m in enumerate(obj.face_material):
-        groups.setdefault(m, []).append(i)
-    xs, uvs, tris, n = [], [], [], 0
-    missing_texcoords = False
-    for face_ids in reversed(list(groups.values())):
-        polygons = [obj.faces[i] for i in face_ids]
-        corners = [c for p in polygons for c in p]
-        with_texcoords = all(c[1] is not None for c in corners)
-        with_normals = all(c[2] is not None for c in corners)
-        sizes = {len(p) for p in polygons}
-        one_layout = len(sizes) == 1 and (with_normals or all(c[2] is None for c in corners))
-        if one_layout and sizes == {4}:
-            triangles = [(p[a], p[b], p[c]) for a, b, c in QUAD_SPLIT for p in polygons]
-        else:
-            triangles = [(p[a], p[b], p[c]) for p in polygons
-                         for a, b, c in (QUAD_SPLIT if len(p) == 4 else _fan(len(p)))]
-        tri_v = _corner_indices(triangles, 0)
-        try:
-            if not with_texcoords:
-                obj.positions[tri_v]  # a face that refers to a missing vertex is said first
-                missing_texcoords = True
-                continue
-            attributes = [_corner_indices(triangles, 1)] + ([_corner_indices(triangles, 2)] if with_normals else [])
-            faces, mask_v, mask_vt, *_ = unmerge_faces(tri_v, *attributes)
-            xs.append(obj.positions[mask_v])
-        except IndexError as exc:
-            raise ObjError(f"{path}: cannot be read as OBJ ({type(exc).__name__}: {exc})") from None
-        try:
-            uvs.append(obj.texcoords[mask_vt])
-        except IndexError:  # a face refers to a vt line that is not there (or there are none)
-            missing_texcoords = True
-        tris.append(faces + n)
-        n += len(mask_v)
-    if missing_texcoords:
+def _check_garment_lines(obj: ObjFile, path) -> None:
+    """ObjError naming the file for what trimesh would load without complaint or stop on with a
+    message that does not name it: no faces, a face without texture coordinates, a corner that
+    refers to a ``v`` or ``vt`` line that is not there."""
+    if not obj.faces:
+        raise ObjError(f"{path}: has no faces")
+    corners = [c for face in obj.faces for c in face]
+    if any(c[1] is None for c in corners):
         raise ObjError(f"{path}: has no texture coordinates (vt); material coordinates come from them")
-    return np.concatenate(xs), np.concatenate(uvs), np.concatenate(tris)
+    for k, (what, count) in enumerate((("v", len(obj.positions)), ("vt", len(obj.texcoords)))):
+        bad = next((c[k] for c in corners if not (1 <= c[k] <= count or -count <= c[k] <= -1)), None)
+        if bad is not None:
+            raise ObjError(f"{path}: a face refers to {what} {bad}, and the file has {count} {what} lines")
+
+
+def garment_arrays(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(vertex positions (n, 3), texture coordinates (n, 2), triangles (F, 3)) of a garment OBJ,
+    as trimesh's OBJ import gives them (``trimesh.load_mesh(path, process=False)``: a vertex per
+    distinct position and texture coordinate of the faces, polygons cut into triangles, groups of
+    ``usemtl`` concatenated). The file is parsed by :func:`read_obj` first, so that a line that is
+    not OBJ, a missing vertex or missing texture coordinates give an ObjError naming the file and
+    the line or index, before trimesh reads it."""
+    _check_garment_lines(read_obj(path, texcoords=True, encoding_errors="replace"), path)
+    try:
+        tm = trimesh.load_mesh(path, file_type="obj", process=False)
+    except Exception as exc:  # noqa: BLE001 - whatever trimesh raises, the message names the file
+        raise ObjError(f"{path}: cannot be read as OBJ ({type(exc).__name__}: {exc})") from None
+    uv = getattr(tm.visual, "uv", None)
+    if uv is None or len(uv) != len(tm.vertices):
+        raise ObjError(f"{path}: has no texture coordinates (vt); material coordinates come from them")
+    return (np.asarray(tm.vertices, dtype=np.float64), np.asarray(uv, dtype=np.float64),
+            np.asarray(tm.faces, dtype=np.int64))
 
 
 def load_obj(path, uv_scale: float = 1.0, position_scale: float = 1.0) -> Mesh:
@@ -203,10 +169,7 @@ def load_obj(path, uv_scale: float = 1.0, position_scale: float = 1.0) -> Mesh:
         raise ObjError(f"{path}: no such file")
     if not (uv_scale > 0 and position_scale > 0):
         raise ObjError(f"{path}: uv_scale and position_scale must be > 0")
-    obj = read_obj(path, texcoords=True, encoding_errors="replace")  # a stray byte in a comment is no error
-    if not obj.faces:
-        raise ObjError(f"{path}: has no faces")
-    x, uv, faces = garment_arrays(obj, path)
+    x, uv, faces = garment_arrays(path)
     verts_x = x * position_scale
     vert_u = uv * uv_scale
     # one node per distinct position, numbered in order of first appearance
