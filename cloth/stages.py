@@ -25,6 +25,7 @@ from cloth.physics.forces import (
     Membrane,
     Wind,
 )
+from cloth.physics.membrane import GAUSS_NEWTON
 
 # Force terms in the order they are assembled (each present only when its effect is declared).
 FORCE_EFFECTS = ("membrane", "bending", "gravity", "wind")
@@ -91,18 +92,20 @@ def plan_stages(scene: Scene, remesher=None, buckling=None) -> Stages:
     )
 
 
-def build_force_terms(scene: Scene) -> list[ForceTerm]:
+def build_force_terms(scene: Scene, bending_hessian: str = "projected") -> list[ForceTerm]:
     """The force terms of the scene's declared effects, in a fixed order (built once).
 
     The material's type chooses the elasticity: a Material gets the isotropic StVK membrane and
-    one bending stiffness, a MeasuredMaterial ARCSim's measured membrane and per-hinge bending."""
+    one bending stiffness, a MeasuredMaterial ARCSim's measured membrane and per-hinge bending.
+    `bending_hessian` (cloth.physics.linsolve.BENDING_HESSIANS): the bending term's Hessian."""
     terms: list[ForceTerm] = []
     material = scene.material
     measured = isinstance(material, MeasuredMaterial)
     if "membrane" in scene.effects:
         terms.append(MeasuredMembrane(material) if measured else Membrane(*material.lame()))
     if "bending" in scene.effects:
-        terms.append(MeasuredBending(material) if measured else Bending(material.bending_stiffness))
+        project = GAUSS_NEWTON if bending_hessian == "gauss_newton" else True
+        terms.append(MeasuredBending(material, project) if measured else Bending(material.bending_stiffness, project))
     if "gravity" in scene.effects:
         terms.append(Gravity(scene.gravity))
     if "wind" in scene.effects:

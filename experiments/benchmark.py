@@ -2,6 +2,7 @@
 
     python -m experiments.benchmark [--resolutions 32 64 128 256] [--frames 6] [--warmup 12]
                                     [--solver auto|cholesky|pcg|direct] [--out DIR]
+                                    [--bending-hessian projected|gauss_newton|both]
     python -m experiments.benchmark --modes [--scene sheet_on_sphere] [--camera sheet_half]
                                     [--frames 20] [--warmup 10] [--out DIR]
 
@@ -11,6 +12,10 @@ equal adaptive's mean; mode=viewdep runs with `--camera`. It prints and writes (
 microseconds per face per step of every phase (sizing, remeshing with its pop filter, physics,
 solve, collisions), so that the adaptive modes' overhead per face is visible, and the ratio of
 adaptive's frame time to the fixed mesh's.
+
+`--bending-hessian both` times every resolution with the projected bending Hessian and with the
+Gauss-Newton one (solver.bending_hessian), one after the other on the same sheet, and prints the
+ratio of their physics and step times at each resolution (projected over Gauss-Newton).
 
 A benchmark, not a test: it prints ratios measured in one run and writes
 `<out>/<timestamp>/steps.csv` (default out: results/benchmark) (one row per resolution: seconds per step by phase,
@@ -42,7 +47,7 @@ import cloth.physics.integrator
 from cloth.core.material import Material
 from cloth.core.records import PHASES, SIM_PHASES
 from cloth.io.manifest import environment_manifest, write_json_atomic, write_text_atomic
-from cloth.physics.linsolve import METHODS, SolverOptions, resolve_method
+from cloth.physics.linsolve import BENDING_HESSIANS, METHODS, SolverOptions, resolve_method
 from cloth.scenes.registry import build_scene
 from cloth.simulation import Simulation
 
@@ -101,7 +106,8 @@ def bench(resolution: int, frames: int, warmup: int, solver: SolverOptions) -> d
     steps = frames * scene.steps_per_frame
     wall = df["wall_s"].sum()
     out = {"resolution": resolution, "faces": sim.mesh.n_faces, "nodes": sim.mesh.n_nodes,
-           "solver": resolve_method(solver.method, 3 * sim.mesh.n_nodes), "steps": steps, "s_per_step": wall / steps}
+           "solver": resolve_method(solver.method, 3 * sim.mesh.n_nodes), "bending_hessian": solver.bending_hessian,
+           "steps": steps, "s_per_step": wall / steps}
     for p in PHASES:
         out[f"{p}_s_per_step"] = df[f"time_{p}_s"].sum() / steps
     out["us_per_face_per_step"] = 1e6 * wall / steps / sim.mesh.n_faces
@@ -160,6 +166,9 @@ def main(argv=None) -> None:
     parser.add_argument("--warmup", type=int, default=None, help="untimed frames before timing (12; --modes: 10)")
     parser.add_argument("--solver", choices=METHODS, default="auto",
                         help="linear solver (cloth.physics.linsolve); auto: cholesky where MKL loads, else pcg")
+    parser.add_argument("--bending-hessian", choices=(*BENDING_HESSIANS, "both"), default="projected",
+                        help="the bending term's Hessian (solver.bending_hessian); both: each resolution with each, "
+                             "and their ratio")
     parser.add_argument("--out", type=Path, default=Path("results/benchmark"))
     parser.add_argument("--modes", action="store_true", help="the three modes at matched mean faces, per phase")
     parser.add_argument("--scene", default="sheet_on_sphere", help="--modes: the scene (conf/scene/)")
@@ -168,6 +177,9 @@ def main(argv=None) -> None:
     parser.add_argument("overrides", nargs="*", help="--modes: more config overrides (key=value)")
     args = parser.parse_args(argv)
     solver = SolverOptions(method=args.solver)  # a method that cannot run here stops before any work
+    hessians = BENDING_HESSIANS if args.bending_hessian == "both" else (args.bending_hessian,)
+    if args.modes and args.bending_hessian == "both":
+        parser.error("--bending-hessian both: not with --modes (give solver.bending_hessian=... as an override)")
     if args.modes:
         frames = 20 if args.frames is None else args.frames
         warmup = 10 if args.warmup is None else args.warmup
@@ -180,7 +192,8 @@ def main(argv=None) -> None:
     out_dir = args.out / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     out_dir.mkdir(parents=True, exist_ok=True)
     if args.modes:
-        df = bench_modes(args.scene, args.camera, frames, warmup, [f"solver={args.solver}", *args.overrides],
+        df = bench_modes(args.scene, args.camera, frames, warmup,
+                         [f"solver={args.solver}", f"solver.bending_hessian={args.bending_hessian}", *args.overrides],
                          args.scale)
         write_text_atomic(out_dir / "modes.csv", df.to_csv(index=False))
         phases = [f"{p}_us_per_face_step" for p in SIM_PHASES]
@@ -197,21 +210,32 @@ def main(argv=None) -> None:
         return
     rows = []
     for r in args.resolutions:
-        row = bench(r, frames, warmup, solver)
-        rows.append(row)
-        print(f"faces {row['faces']:6d}: {row['s_per_step'] * 1e3:8.1f} ms/step "
-              f"({row['us_per_face_per_step']:.2f} us/face/step; physics {row['physics_s_per_step'] * 1e3:.1f}, "
-              f"solve {row['solve_s_per_step'] * 1e3:.1f}, collisions {row['collisions_s_per_step'] * 1e3:.1f} ms; "
-              f"{row['solver']}, CG {row['cg_iterations_per_step']:.0f} it, {row['solves_capped']} capped; "
-              f"outside kernels+solver "
-              f"{100 * row['share_outside_kernels_and_solver']:.1f}%)", flush=True)
+        for hessian in hessians:
+            row = bench(r, frames, warmup, SolverOptions(method=args.solver, bending_hessian=hessian))
+            rows.append(row)
+            _print_row(row, len(hessians) > 1)
+        if len(hessians) > 1:
+            p, g = rows[-2], rows[-1]
+            print(f"    projected / gauss_newton: physics {p['physics_s_per_step'] / g['physics_s_per_step']:.2f}x, "
+                  f"step {p['s_per_step'] / g['s_per_step']:.2f}x", flush=True)
     df = pd.DataFrame(rows)
     write_text_atomic(out_dir / "steps.csv", df.to_csv(index=False))
-    slope = float(np.polyfit(np.log(df["faces"]), np.log(df["s_per_step"]), 1)[0]) if len(df) > 1 else float("nan")
+    fit = df[df["bending_hessian"] == hessians[0]]
+    slope = float(np.polyfit(np.log(fit["faces"]), np.log(fit["s_per_step"]), 1)[0]) if len(fit) > 1 else float("nan")
     summary = {"growth_exponent": slope, "solver": resolve_method(solver.method), "rows": rows,
                "manifest": environment_manifest(0)}
     write_json_atomic(out_dir / "summary.json", summary)
-    print(f"time grows as faces^{slope:.2f} (1.00 = linear); results in {out_dir}")
+    print(f"time grows as faces^{slope:.2f} (1.00 = linear; {hessians[0]} Hessian); results in {out_dir}")
+
+
+def _print_row(row: dict, name_hessian: bool) -> None:
+    print(f"faces {row['faces']:6d}: {row['s_per_step'] * 1e3:8.1f} ms/step "
+          f"({row['us_per_face_per_step']:.2f} us/face/step; physics {row['physics_s_per_step'] * 1e3:.1f}, "
+          f"solve {row['solve_s_per_step'] * 1e3:.1f}, collisions {row['collisions_s_per_step'] * 1e3:.1f} ms; "
+          f"{row['solver']}, CG {row['cg_iterations_per_step']:.0f} it, {row['solves_capped']} capped; "
+          f"outside kernels+solver "
+          f"{100 * row['share_outside_kernels_and_solver']:.1f}%)"
+          + (f" [{row['bending_hessian']}]" if name_hessian else ""), flush=True)
 
 
 if __name__ == "__main__":

@@ -46,6 +46,7 @@ BAD = [
     (("material.youngs_modulus=inf",), "material.youngs_modulus"),
     (("solver.tolerance=abc",), "solver.tolerance"),
     (("solver.max_iterations=abc",), "solver.max_iterations"),
+    (("solver.bending_hessian=newton",), "solver.bending_hessian"),
     ((*VIEW, "mode.view.nu_out=abc"), "mode.view.nu_out"),
     (("+scene.params.resolution=2.5",), "scene.params.resolution"),
     (("max_speed=inf",), "max_speed"),

@@ -29,6 +29,14 @@ def test_benchmark_writes_time_per_step_by_phase(tmp_path):
     assert set(steps.solver) <= {"cholesky", "pcg"} and (steps.solves_capped == 0).all()
 
 
+def test_benchmark_times_both_bending_hessians_on_the_same_sheet(tmp_path, capsys):
+    from experiments.benchmark import main
+    main(["--resolutions", "4", "--frames", "1", "--warmup", "1", "--bending-hessian", "both", "--out", str(tmp_path)])
+    steps = pd.read_csv(_only_child(tmp_path) / "steps.csv")
+    assert list(steps.bending_hessian) == ["projected", "gauss_newton"] and list(steps.faces) == [32, 32]
+    assert "projected / gauss_newton: physics" in capsys.readouterr().out
+
+
 # --modes matches the fixed mesh's faces to adaptive's mean through resolution_factor, which the
 # preset's integer resolution rounds: within one cell per side of a 24-cell sheet (2 x 24^2 faces),
 # a face count within about 2 x (1/24) + rounding of the target; 25 % covers the small counts here.

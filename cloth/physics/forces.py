@@ -148,8 +148,10 @@ class Bending(ForceTerm):
 
     name = "bending"
 
-    def __init__(self, k_bend: float, project: bool = True):
-        self.k_bend, self.project = float(k_bend), bool(project)
+    def __init__(self, k_bend: float, project: bool | int = True):
+        """`project`: the Hessian of cloth.physics.bending.bending_element_into (False, True or
+        GAUSS_NEWTON)."""
+        self.k_bend, self.project = float(k_bend), _hessian_kind(project)
 
     families = ("hinges",)
 
@@ -187,9 +189,9 @@ class MeasuredBending(Bending):
     keeps only its Gauss-Newton part w grad theta grad theta^T, cloth.physics.bending.GAUSS_NEWTON).
     """
 
-    def __init__(self, material, project: bool = True):
+    def __init__(self, material, project: bool | int = True):
         self.bending_samples = np.ascontiguousarray(material.bending)  # (3, 5) N m
-        self.project = bool(project)
+        self.project = _hessian_kind(project)
 
     def rebuild(self, mesh, pattern):
         self.stencil = mesh.edge_stencil()
@@ -213,6 +215,11 @@ class MeasuredBending(Bending):
     def add_forces(self, mesh, t, pattern, force):
         self.update_stiffness(mesh.node_x)
         super().add_forces(mesh, t, pattern, force)
+
+
+def _hessian_kind(project) -> bool | int:
+    """A bending term's `project`: GAUSS_NEWTON kept as it is, anything else as a bool."""
+    return GAUSS_NEWTON if project == GAUSS_NEWTON else bool(project)
 
 
 class Gravity(ForceTerm):

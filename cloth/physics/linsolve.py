@@ -31,6 +31,11 @@ from numba import njit
 from cloth.physics.assembly import SparsityPattern, bsr_matvec
 
 METHODS = ("auto", "cholesky", "pcg", "direct")
+# The bending Hessian the step's matrix holds (cloth.physics.bending): "projected", the exact one
+# projected to positive semi-definite where it is not (a 9x9 eigen-decomposition per bent hinge);
+# "gauss_newton", only its term w grad theta grad theta^T, PSD by construction and exact at the
+# rest angle (ARCSim's). The forces are the same; only the step's matrix differs.
+BENDING_HESSIANS = ("projected", "gauss_newton")
 # "auto" factorizes from this many unknowns (3 per node) up. Measured on the dancer's systems:
 # 150-250 unknowns (out of view), PCG 0.13 ms per step against PARDISO's 1 ms; about 3,000
 # (1.8k faces in view), PARDISO ahead; the sheet's 3,267, 17 ms against 3 ms.
@@ -85,6 +90,7 @@ class SolverOptions:
     method: str = "auto"  # one of METHODS (module docstring)
     tolerance: float = 1e-6  # relative residual |b - A x| / |b| every method must reach
     max_iterations: int = 1000  # PCG iteration cap; the record says when it is hit
+    bending_hessian: str = "projected"  # one of BENDING_HESSIANS
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -95,6 +101,9 @@ class SolverOptions:
             raise ValueError(f"solver.tolerance must be > 0, got {self.tolerance}")
         if self.max_iterations < 1:
             raise ValueError(f"solver.max_iterations must be >= 1, got {self.max_iterations}")
+        if self.bending_hessian not in BENDING_HESSIANS:
+            raise ValueError(f"solver.bending_hessian must be one of {', '.join(BENDING_HESSIANS)}, "
+                             f"got {self.bending_hessian!r}")
 
 
 @njit(cache=True)
