@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from cloth.core.records import PHASES, STEP_CHECKS
+from cloth.core.records import COLLISION_PARTS, PHASES, STEP_CHECKS
 from cloth.io.checkpoint import CHECKPOINT_DIR, FINAL_STATE_FILE, remove_checkpoint, save_checkpoint, save_final_state
 from cloth.io.manifest import remove_stale_temp_files, write_json_atomic, write_parquet_atomic, write_text_atomic
 from cloth.io.obj import save_obj
@@ -85,6 +85,9 @@ def summarize(frames: pd.DataFrame) -> dict:
     out["wall_total_s"] = float(frames["wall_s"].sum())
     for p in PHASES:
         out[f"time_{p}_total_s"] = float(frames[f"time_{p}_s"].sum())
+    for part in COLLISION_PARTS:  # absent in the records of code before the collision phase's parts
+        if f"time_collisions_{part}_s" in frames.columns:
+            out[f"time_collisions_{part}_total_s"] = float(frames[f"time_collisions_{part}_s"].sum())
     out["solver_iterations_total"] = int(frames["solver_iterations"].sum())
     if "solves_capped" in frames.columns:
         out["solves_capped_total"] = int(frames["solves_capped"].sum())

@@ -64,6 +64,7 @@ from cloth.collision.selfcollision import (
 )
 from cloth.collision.untangle import untangle
 from cloth.core.records import (
+    COLLISION_PARTS,
     COLLISION_RECORD,
     PHASES,
     REMESH_RECORD,
@@ -203,7 +204,7 @@ class Simulation(StepControl, Restart, FrameRecord):
         Times: time_<phase>_s per phase (PHASES), sim_s = the sum over SIM_PHASES (simulation
         time, the paper's Time/Frame), wall_s = the whole call (the runner adds its I/O to it)."""
         t_start = time.perf_counter()
-        timings = {p: 0.0 for p in PHASES}
+        timings = {p: 0.0 for p in PHASES} | {f"collisions_{part}": 0.0 for part in COLLISION_PARTS}
         stats = {"steps": 0, "solver_iterations": 0, "solver_iterations_max": 0, "solver_residual": 0.0,
                  "solves_capped": 0, "contacts": 0, **STEP_RECORD,
                  **REMESH_RECORD, **VIEW_RECORD, **COLLISION_RECORD, **STRAIN_LIMIT_RECORD}
@@ -213,7 +214,7 @@ class Simulation(StepControl, Restart, FrameRecord):
             # the start state (a fixed mesh made from a coarse garment can cross a body between
             # its nodes), after a remesh that changed the mesh, and in every frame after one that
             # left crossings (the record then says what is still left, not 0)
-            self._timed(timings, "collisions", self.untangle, stats)
+            self._timed(timings, "collisions.untangle", self.untangle, stats)
         if stages.buckling:
             self._timed(timings, "sizing", self.update_buckling)
         n_steps = self.scene.steps_per_frame if self.remesher is None else self.remesher.steps_for_frame(self)
@@ -232,6 +233,8 @@ class Simulation(StepControl, Restart, FrameRecord):
         wall = time.perf_counter() - t_start
         for p in PHASES:
             record[f"time_{p}_s"] = timings[p]
+        for part in COLLISION_PARTS:
+            record[f"time_collisions_{part}_s"] = timings[f"collisions_{part}"]
         record["time_other_s"] = max(wall - sum(timings[p] for p in PHASES if p != "other"), 0.0)
         record["sim_s"] = sum(timings[p] for p in SIM_PHASES)  # the paper's Time/Frame
         record["wall_s"] = wall
@@ -257,21 +260,28 @@ class Simulation(StepControl, Restart, FrameRecord):
         self._step_gave_up = False  # set by resolve_collisions when its pass leaves collisions
         x_start = mesh.node_x.copy() if collide else None
         y_start = self._mesh_obstacle_positions() if stages.obstacle_ccd else None
-        contacts = self._timed(timings, "collisions", self._contact_constraints) if stages.obstacle_contact else None
+        contacts = (self._timed(timings, "collisions.contacts", self._contact_constraints)
+                    if stages.obstacle_contact else None)
         self._implicit_step(contacts, timings, stats)
         if stages.strain_limiting:
             self._timed(timings, "physics", self.limit_strain, stats)
         if stages.obstacle_contact:
-            self._timed(timings, "collisions", self._project_contacts, stats)
+            self._timed(timings, "collisions.projection", self._project_contacts, stats)
         if collide:  # cloth-obstacle (with obstacle_ccd) and cloth-cloth collisions, in one pass
-            self._timed(timings, "collisions", self.resolve_collisions, x_start, h, stats, y_start)
+            self._timed(timings, "collisions.pass", self.resolve_collisions, x_start, h, stats, y_start)
 
     @staticmethod
     def _timed(timings: dict, phase: str, stage, *args):
-        """Run `stage(*args)`, adding its wall time to timings[phase] (accumulates into timings)."""
+        """Run `stage(*args)`, adding its wall time to timings[phase] (accumulates into timings).
+        A phase "collisions.untangle" adds it to timings["collisions"] and to the part's own
+        timings["collisions_untangle"] (COLLISION_PARTS)."""
         t0 = time.perf_counter()
         out = stage(*args)
-        timings[phase] += time.perf_counter() - t0
+        dt = time.perf_counter() - t0
+        main, _, part = phase.partition(".")
+        timings[main] += dt
+        if part:
+            timings[f"{main}_{part}"] = timings.get(f"{main}_{part}", 0.0) + dt
         return out
 
     # ---- the stages ------------------------------------------------------------------------

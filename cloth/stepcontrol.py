@@ -87,7 +87,7 @@ class StepControl:
             # body. Untangled before the next step, whose collision pass needs a clean start (a
             # fixed dress kept 12 such crossings for 165 frames; untangled only at the next
             # frame's start, frames 335-337 of its dance still ended crossing)
-            self._timed(timings, "collisions", self.untangle, stats)
+            self._timed(timings, "collisions.untangle", self.untangle, stats)
 
     def _free_kinetic_energy(self) -> tuple[float, float]:
         """(kinetic energy of the free nodes in J, their mass in kg)."""

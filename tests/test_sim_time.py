@@ -4,6 +4,7 @@ from their phase columns."""
 
 import numpy as np
 import pandas as pd
+import pytest
 from helpers import COTTON
 
 import cloth.runner
@@ -24,6 +25,35 @@ def test_sim_s_is_the_sum_of_the_simulation_phases_and_io_is_outside(tmp_path):
     assert np.array_equal(frames["sim_s"].to_numpy(), [sum(row) for row in phases.tolist()])
     assert (frames["time_io_s"] > 0).all()
     assert (frames["wall_s"] >= frames["sim_s"] + frames["time_io_s"]).all()
+
+
+# The parts of the collisions phase are timed by the same clock reads as the phase, added in
+# another order: equal to round-off of a sum of a few dozen terms of milliseconds (s).
+PARTS_ROUNDOFF_S = 1e-12
+
+
+def test_the_collision_phase_is_the_sum_of_its_parts(tmp_path):
+    """time_collisions_s = contacts + projection + pass + untangle, per frame, in a scene that has
+    all four (layered sheets with self-collision on a sphere); the summary totals each part."""
+    import json
+
+    from helpers import build_sim
+
+    from cloth.core.records import COLLISION_PARTS
+
+    sim = build_sim("scene=layered_sheets", "mode=adaptive")
+    summary = run(sim, 3, tmp_path)
+    frames = pd.read_parquet(tmp_path / "frames.parquet")
+    parts = frames[[f"time_collisions_{p}_s" for p in COLLISION_PARTS]]
+    assert (parts >= 0).all().all()
+    assert np.allclose(parts.sum(axis=1), frames["time_collisions_s"], rtol=0, atol=PARTS_ROUNDOFF_S)
+    for p in ("contacts", "projection", "pass"):  # every step of this scene runs them
+        assert (frames[f"time_collisions_{p}_s"] > 0).all(), p
+    assert frames["time_collisions_untangle_s"].iloc[0] > 0  # the start state is checked
+    totals = json.loads((tmp_path / "summary.json").read_text())
+    assert totals["time_collisions_pass_total_s"] == summary["time_collisions_pass_total_s"]
+    for p in COLLISION_PARTS:
+        assert totals[f"time_collisions_{p}_total_s"] == pytest.approx(frames[f"time_collisions_{p}_s"].sum())
 
 
 def test_runs_recorded_before_sim_s_get_it_from_their_phase_columns():

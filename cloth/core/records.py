@@ -11,6 +11,12 @@ PHASES = ("sizing", "remesh", "physics", "solve", "collisions", "io", "other")
 # column sim_s, the paper's Time/Frame. I/O (time_io_s) and the rest (time_other_s: the record's
 # own counts, view counts) are recorded beside it, never inside it.
 SIM_PHASES = ("sizing", "remesh", "physics", "solve", "collisions")
+# The collisions phase in its parts (column time_collisions_<part>_s; they sum to time_collisions_s):
+# contacts, finding the obstacle contacts each step constrains; projection, moving nodes out of the
+# obstacles after the step; pass, the step's collision pass (proximity, continuous detection, impact
+# zones: cloth-cloth, and cloth-mesh obstacle with obstacle_ccd); untangle, removing crossings (of
+# the start state, after a remesh, after a pass that gave up).
+COLLISION_PARTS = ("contacts", "projection", "pass", "untangle")
 
 # The remesh stage (NaN or 0 in frames without a remesh, and in mode=nonadaptive).
 REMESH_RECORD = {"remeshed": 0, "remesh_splits": 0, "remesh_collapses": 0, "remesh_flips": 0,
