@@ -5,6 +5,9 @@
                                     [--bending-hessian projected|gauss_newton|both]
     python -m experiments.benchmark --modes [--scene sheet_on_sphere] [--camera sheet_half]
                                     [--frames 20] [--warmup 10] [--out DIR]
+    python -m experiments.benchmark --scene karate|solo_dancer|PATH/conf/sphere.json
+                                    [--mode adaptive] [--scale small] [--frames 20] [--warmup 5]
+                                    [KEY=VALUE ...]
 
 `--modes` times the three modes on one scene (Hydra's config, `--scale`, small by default) at matched mean
 faces: mode=adaptive runs first, and the fixed mesh's resolution_factor is set so that its faces
@@ -12,6 +15,13 @@ equal adaptive's mean; mode=viewdep runs with `--camera`. It prints and writes (
 microseconds per face per step of every phase (sizing, remeshing with its pop filter, physics,
 solve, collisions), so that the adaptive modes' overhead per face is visible, and the ratio of
 adaptive's frame time to the fixed mesh's.
+
+`--scene` without `--modes` times one scene as the runs of a study run it (Hydra's config: a
+scene of `conf/scene/`, or an ARCSim configuration given as its .json path, run as `scene=arcsim`)
+in `--mode` and prints microseconds per face per step of every phase, the collisions phase in its
+parts (obstacle contacts, their projection, the collision pass, untangling), and the implicit
+steps per frame against the scene's own (obstacle substeps and step control add steps); it
+writes `scene.csv` and `summary.json`.
 
 `--bending-hessian both` times every resolution with the projected bending Hessian and with the
 Gauss-Newton one (solver.bending_hessian), one after the other on the same sheet, and prints the
@@ -45,7 +55,7 @@ import cloth.physics.assembly
 import cloth.physics.forces
 import cloth.physics.integrator
 from cloth.core.material import Material
-from cloth.core.records import PHASES, SIM_PHASES
+from cloth.core.records import COLLISION_PARTS, PHASES, SIM_PHASES
 from cloth.io.manifest import environment_manifest, write_json_atomic, write_text_atomic
 from cloth.physics.linsolve import BENDING_HESSIANS, METHODS, SolverOptions, resolve_method
 from cloth.scenes.registry import build_scene
@@ -130,7 +140,9 @@ def _time_mode(overrides: list[str], frames: int, warmup: int) -> pd.DataFrame:
     sim, _ = build_simulation(cfg)
     for _ in range(warmup):
         sim.advance_frame()
-    return pd.DataFrame([sim.advance_frame() for _ in range(frames)])
+    df = pd.DataFrame([sim.advance_frame() for _ in range(frames)])
+    df.attrs["scene_steps_per_frame"] = sim.scene.steps_per_frame  # what the scene asks for
+    return df
 
 
 def mode_row(mode: str, df: pd.DataFrame) -> dict:
@@ -140,7 +152,28 @@ def mode_row(mode: str, df: pd.DataFrame) -> dict:
            "s_per_frame": float(df["sim_s"].mean())}
     for p in SIM_PHASES:
         row[f"{p}_us_per_face_step"] = 1e6 * float(df[f"time_{p}_s"].sum()) / face_steps
+    for part in COLLISION_PARTS:
+        row[f"collisions_{part}_us_per_face_step"] = 1e6 * float(df[f"time_collisions_{part}_s"].sum()) / face_steps
     row["us_per_face_step"] = 1e6 * float(df["sim_s"].sum()) / face_steps
+    return row
+
+
+def scene_overrides(scene: str) -> list[str]:
+    """The overrides that select `scene`: a conf/scene/ name, or an ARCSim .json configuration."""
+    if scene.endswith(".json"):
+        return ["scene=arcsim", f"scene.params.conf={Path(scene).expanduser().resolve()}"]
+    return [f"scene={scene}"]
+
+
+def bench_scene(scene: str, mode: str, frames: int, warmup: int, extra: list[str], scale: str = "small") -> dict:
+    """One scene in one mode: per-phase cost per face per step of `frames` frames after `warmup`."""
+    overrides = [*scene_overrides(scene), f"mode={mode}", f"scale={scale}", *extra]
+    df = _time_mode(overrides, frames, warmup)
+    row = mode_row(mode, df)
+    row.update(scene=scene, scale=scale, frames=frames, scene_steps_per_frame=df.attrs["scene_steps_per_frame"],
+               steps_per_frame=float(df["steps"].mean()),
+               steps_per_frame_max=int(df["steps"].max()), collision_share=float(df["time_collisions_s"].sum()
+                                                                                  / df["sim_s"].sum()))
     return row
 
 
@@ -171,21 +204,36 @@ def main(argv=None) -> None:
                              "and their ratio")
     parser.add_argument("--out", type=Path, default=Path("results/benchmark"))
     parser.add_argument("--modes", action="store_true", help="the three modes at matched mean faces, per phase")
-    parser.add_argument("--scene", default="sheet_on_sphere", help="--modes: the scene (conf/scene/)")
+    parser.add_argument("--scene", default=None,
+                        help="--modes: the scene (conf/scene/; default sheet_on_sphere); without --modes: time this "
+                             "scene (conf/scene/ name or ARCSim .json) by phase")
+    parser.add_argument("--mode", default="adaptive", choices=("nonadaptive", "adaptive", "viewdep"),
+                        help="--scene: the mode (viewdep needs camera=... among the overrides)")
     parser.add_argument("--camera", default="sheet_half", help="--modes: mode=viewdep's camera (conf/camera/)")
     parser.add_argument("--scale", default="small", choices=("small", "paper"), help="--modes: the scene's preset")
-    parser.add_argument("overrides", nargs="*", help="--modes: more config overrides (key=value)")
+    parser.add_argument("overrides", nargs="*", help="--modes, --scene: more config overrides (key=value)")
     args = parser.parse_args(argv)
+    if args.scene is not None and args.scene.endswith(".json") and not Path(args.scene).expanduser().is_file():
+        parser.error(f"--scene {args.scene!r}: no such ARCSim configuration")
+    if args.scene is None and args.overrides and not args.modes:
+        parser.error("overrides (key=value) go with --modes or --scene")
     solver = SolverOptions(method=args.solver)  # a method that cannot run here stops before any work
     hessians = BENDING_HESSIANS if args.bending_hessian == "both" else (args.bending_hessian,)
-    if args.modes and args.bending_hessian == "both":
-        parser.error("--bending-hessian both: not with --modes (give solver.bending_hessian=... as an override)")
+    if (args.modes or args.scene is not None) and args.bending_hessian == "both":
+        parser.error("--bending-hessian both: not with --modes or --scene (run each, or give "
+                     "solver.bending_hessian=... as an override)")
     if args.modes:
+        args.scene = args.scene or "sheet_on_sphere"
         frames = 20 if args.frames is None else args.frames
         warmup = 10 if args.warmup is None else args.warmup
         for name, group in ((args.scene, "scene"), (args.camera, "camera")):
             if not (CONF / group / f"{name}.yaml").exists():
                 parser.error(f"--{group} {name!r}: no conf/{group}/{name}.yaml")
+    elif args.scene is not None:
+        frames = 20 if args.frames is None else args.frames
+        warmup = 5 if args.warmup is None else args.warmup
+        if not args.scene.endswith(".json") and not (CONF / "scene" / f"{args.scene}.yaml").exists():
+            parser.error(f"--scene {args.scene!r}: no conf/scene/{args.scene}.yaml (or give an ARCSim .json)")
     else:
         frames = 6 if args.frames is None else args.frames
         warmup = 12 if args.warmup is None else args.warmup
@@ -207,6 +255,24 @@ def main(argv=None) -> None:
         write_json_atomic(out_dir / "summary.json", summary)
         print(f"adaptive / fixed at matched faces: {frame_ratio:.2f}x frame time ({ratio:.2f}x per face and step); "
               f"results in {out_dir}")
+        return
+    if args.scene is not None:
+        row = bench_scene(args.scene, args.mode, frames, warmup,
+                          [f"solver={args.solver}", f"solver.bending_hessian={args.bending_hessian}",
+                           *args.overrides], args.scale)
+        write_text_atomic(out_dir / "scene.csv", pd.DataFrame([row]).to_csv(index=False))
+        write_json_atomic(out_dir / "summary.json", {**row, "manifest": environment_manifest(0)})
+        print(f"{args.scene} ({args.mode}, scale={args.scale}): {row['faces_mean']:.0f} faces, "
+              f"{row['steps_per_frame']:.1f} steps per frame (up to {row['steps_per_frame_max']}; the scene asks for "
+              f"{row['scene_steps_per_frame']}), "
+              f"{row['s_per_frame']:.3f} s per frame, collisions {100 * row['collision_share']:.0f} %")
+        print("microseconds per face per step:")
+        for p in SIM_PHASES:
+            print(f"  {p:12s} {row[f'{p}_us_per_face_step']:8.2f}")
+            if p == "collisions":
+                for part in COLLISION_PARTS:
+                    print(f"    {part:10s} {row[f'collisions_{part}_us_per_face_step']:8.2f}")
+        print(f"  {'all':12s} {row['us_per_face_step']:8.2f}   results in {out_dir}")
         return
     rows = []
     for r in args.resolutions:

@@ -51,8 +51,9 @@ def test_benchmark_modes_times_the_three_modes_per_face_and_phase(tmp_path):
     assert list(modes["mode"]) == ["nonadaptive", "adaptive", "viewdep"]
     fixed, adaptive = modes.iloc[0], modes.iloc[1]
     assert abs(fixed.faces_mean - adaptive.faces_mean) <= MATCHED_FACES * adaptive.faces_mean
-    phases = [c for c in modes.columns if c.endswith("_us_per_face_step") and c != "us_per_face_step"]
-    assert {"sizing_us_per_face_step", "remesh_us_per_face_step", "solve_us_per_face_step"} <= set(phases)
+    from cloth.core.records import SIM_PHASES
+    phases = [f"{p}_us_per_face_step" for p in SIM_PHASES]  # the collisions phase's parts are within it
+    assert set(phases) <= set(modes.columns)
     # the phases add up to the whole (sim_s is their sum); the fixed mesh neither sizes nor remeshes
     assert np.allclose(modes[phases].sum(axis=1), modes["us_per_face_step"], rtol=1e-9)
     assert fixed.sizing_us_per_face_step == 0 and fixed.remesh_us_per_face_step == 0
@@ -88,6 +89,22 @@ def test_stability_tool_writes_csv_and_markdown(tmp_path):
     assert "one_frame_step" in (out / "table.md").read_text()
     cases = (out / "cases.md").read_text()
     assert "seeds 0-1" in cases and "| one_frame_step | 2 | 2 |" in cases  # seeds run, seeds passed
+
+
+def test_benchmark_times_a_scene_by_phase_and_collision_part(tmp_path, capsys):
+    from experiments.benchmark import main
+    main(["--scene", "layered_sheets", "--frames", "2", "--warmup", "1", "--out", str(tmp_path),
+          "scene.scales.small.resolution=6"])
+    row = pd.read_csv(_only_child(tmp_path) / "scene.csv").iloc[0]
+    parts = ["contacts", "projection", "pass", "untangle"]
+    assert row["collisions_us_per_face_step"] == pytest.approx(
+        sum(row[f"collisions_{p}_us_per_face_step"] for p in parts), rel=1e-9)
+    assert row["steps_per_frame"] >= row["scene_steps_per_frame"] >= 1 and row["faces_mean"] > 0
+    out = capsys.readouterr().out
+    assert "microseconds per face per step" in out and "untangle" in out
+    with pytest.raises(SystemExit):
+        main(["--scene", str(tmp_path / "nowhere.json")])
+    assert "no such ARCSim configuration" in capsys.readouterr().err
 
 
 def test_a_killed_stability_run_continues_from_its_checkpoint(tmp_path, monkeypatch):
