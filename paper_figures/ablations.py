@@ -41,8 +41,11 @@ from .common import (
 )
 
 CUT_WINDOW_FRAMES = 10  # frames from a cut over which 'error after the cut' is averaged (T = 5 frames, twice)
-BUCKLING_OTHERS = ("nu_out", "margin", "T", "anticipation", "l_min_px")
-ANTICIPATION_OTHERS = ("nu_out", "margin", "l_min_px", "buckling_k", "buckling_mode")
+# what the runs an ablation compares must share (besides what it ablates): the view settings, the
+# occlusion test, the contact floor and the study
+BUCKLING_OTHERS = ("nu_out", "margin", "T", "anticipation", "l_min_px", "occlusion", "contact_size", "study")
+ANTICIPATION_OTHERS = ("nu_out", "margin", "l_min_px", "buckling_k", "buckling_mode", "occlusion", "contact_size",
+                       "study")
 BUCKLING_ORDER = ("none", "uniform", "adaptive")
 BUCKLING_COLORS = {"none": "tab:red", "uniform": "tab:gray", "adaptive": "tab:green"}
 

@@ -191,6 +191,7 @@ def one_factor(runs: pd.DataFrame, factor: str, others) -> pd.DataFrame:
     empty when no group varies `factor`."""
     if runs.empty:
         return runs
+    others = [c for c in others if c in runs.columns]  # a runs table of older code may lack some
     keys = runs[list(others)].apply(lambda r: tuple(_key(v) for v in r), axis=1)
     best, best_n = None, 1
     for k in keys.drop_duplicates():

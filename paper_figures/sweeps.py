@@ -5,11 +5,12 @@ view-dependent method (nu_out, buckling k, anticipation window T, margin).
 
 Writes sweep_<param>.png/.pdf per parameter that varies and sweeps.csv/.md (every point). Runs
 of a parameter: its study's (sweep_<param>) when present, else all; within each scene and scale,
-the viewdep runs in which only that parameter varies (experiments of one factor), the latest
-per value. Speed-up = mean time per frame of the scene's adaptive run in the same study and of the
-same seed / the point's; error =
-error_px_mean of accuracy.json (absent points are left out of that panel). The paper's value of
-each parameter is marked by a dashed line.
+the viewdep runs of one study in which only that parameter varies (experiments of one factor: the
+other view settings, the occlusion test and the contact floor equal), the latest per value.
+Speed-up = mean time per frame of the adaptive run of the point's study and seed / the point's;
+error = the re-synchronised error (sync_error_px_mean, experiments.sync) where it was measured,
+else the whole-run error_px_mean of accuracy.json (column `error` says which; absent points are
+left out of that panel). The paper's value of each parameter is marked by a dashed line.
 """
 
 from __future__ import annotations
@@ -32,7 +33,10 @@ PARAMETERS = {
     "T": ("T", "anticipation window T (frames, eq 4)", False, 5.0),
     "margin": ("margin", "margin m (metres, eq 3)", False, 0.4),
 }
-OTHERS = ("nu_out", "margin", "T", "anticipation", "l_min_px", "buckling_k", "buckling_mode")
+# what a sweep's points must share besides the swept parameter: the other view settings, the
+# occlusion test and contact floor, and the study (a sweep is of one study's runs, never mixed)
+OTHERS = ("nu_out", "margin", "T", "anticipation", "l_min_px", "buckling_k", "buckling_mode", "occlusion",
+          "contact_size", "study")
 
 
 def sweep_points(runs: pd.DataFrame, param: str) -> pd.DataFrame:
@@ -51,12 +55,15 @@ def sweep_points(runs: pd.DataFrame, param: str) -> pd.DataFrame:
         if pts.empty:
             continue
         for r in pts.sort_values(col).itertuples():
-            # the sweep's own adaptive run of the same repeat (seed), never another study's
-            base = baseline_for(cand, scene, scale, seed=r.seed)
+            # the adaptive run of the point's own study and repeat (seed), never another study's
+            base = baseline_for(cand[cand["study"] == r.study], scene, scale, seed=r.seed)
+            sync = getattr(r, "sync_error_px_mean", np.nan)
+            measure, error = ("sync_error_px", sync) if pd.notna(sync) else ("error_px_mean", r.error_px_mean)
             rows.append({"parameter": param, "scene": scene, "scale": scale, "value": float(getattr(r, col)),
-                         "run": r.run, "variant": r.variant, "faces_mean": r.faces_mean, "time_mean_s": r.time_mean_s,
+                         "study": r.study, "run": r.run, "variant": r.variant, "faces_mean": r.faces_mean,
+                         "time_mean_s": r.time_mean_s,
                          "speedup": base["time_mean_s"] / r.time_mean_s if base is not None else np.nan,
-                         "baseline": base["run"] if base is not None else "", "error_px_mean": r.error_px_mean})
+                         "baseline": base["run"] if base is not None else "", "error": measure, "error_px": error})
     return pd.DataFrame(rows)
 
 
@@ -66,18 +73,19 @@ def _figure(points: pd.DataFrame, param: str):
     for (scene, scale), g in points.groupby(["scene", "scale"], sort=True):
         name = f"{scene} ({scale})" if scale else scene
         axes[0].plot(g["value"], g["speedup"], "o-", label=name)
-        axes[1].plot(g["value"], g["error_px_mean"], "o-", label=name)
+        axes[1].plot(g["value"], g["error_px"], "o-", label=name)
     axes[0].set_ylabel("speed-up against adaptive (x)")
     axes[0].axhline(1.0, color="0.5", lw=0.8)
-    axes[1].set_ylabel("screen-space error, mean (px)")
-    for ax, col in zip(axes, ("speedup", "error_px_mean")):
+    measures = set(points["error"].dropna())
+    axes[1].set_ylabel("re-synchronised error (px)" if measures == {"sync_error_px"} else "screen-space error (px)")
+    for ax, col in zip(axes, ("speedup", "error_px")):
         ax.set_xlabel(label)
         if log and (points["value"] > 0).all():
             ax.set_xscale("log")
         ax.axvline(paper_value, color="0.3", ls="--", lw=0.8, label="paper's value")
         ax.grid(alpha=0.3)
         if not points[col].notna().any():
-            ax.text(0.5, 0.5, "not measured" if col == "error_px_mean" else "no adaptive run",
+            ax.text(0.5, 0.5, "not measured" if col == "error_px" else "no adaptive run",
                     transform=ax.transAxes, ha="center", va="center", color="0.4")
         ax.legend(fontsize=8)
     fig.suptitle(f"Sweep of {param}: what it buys in time and costs in accuracy")

@@ -419,3 +419,31 @@ def test_a_crowds_records_sum_the_sizing_bounds_of_its_characters(tmp_path):
     r = rows.iloc[0]
     assert (r["faces_sized"], r["faces_at_size_min"], r["faces_at_size_max"]) == (200, 40, 10)
     assert r["edge_at_size_min_m"] == pytest.approx(0.05, abs=EXACT_TOL)
+
+
+def test_a_sweep_never_mixes_studies_or_runs_that_differ_in_more_than_its_parameter(tmp_path):
+    """The main job's root holds several studies. A sweep's points come from one study and share
+    every other view setting (the occlusion test, the contact floor), its baseline is that
+    study's adaptive run, and its error is the re-synchronised one where measured."""
+    from paper_figures.sweeps import sweep_points
+
+    root = tmp_path / "results"
+    n = 4
+    sync = {"sync_error_px_mean": 7.0, "sync_error_px_lo": 6.0, "sync_error_px_hi": 8.0}
+    for study, adaptive_s in (("accuracy", 1.0), ("ablation_buckling_dancer", 0.2)):
+        write_run(root / study / "ad", "solo_dancer", "adaptive", np.full(n, 20), np.full(n, 12),
+                  np.full(n, adaptive_s), study=study)
+    # accuracy: nu_out 0.01 and 0.1, occlusion on; and an occlusion-off run at nu_out 0.001
+    for nu, s in ((0.01, 0.5), (0.1, 0.4)):
+        write_run(root / "accuracy" / f"vd_{nu}", "solo_dancer", "viewdep", np.full(n, 9), np.full(n, 6), np.full(n, s),
+                  study="accuracy", view={"nu_out": nu, "occlusion": True}, sync=sync,
+                  accuracy={"error_px_mean": 70.0})
+    write_run(root / "accuracy" / "vd_occl_off", "solo_dancer", "viewdep", np.full(n, 9), np.full(n, 6),
+              np.full(n, 0.6), study="accuracy", view={"nu_out": 0.001, "occlusion": False})
+    # another study's nu_out 0.3 point, with every view setting as the accuracy runs'
+    write_run(root / "ablation_buckling_dancer" / "vd_0.3", "solo_dancer", "viewdep", np.full(n, 9), np.full(n, 6),
+              np.full(n, 0.1), study="ablation_buckling_dancer", view={"nu_out": 0.3, "occlusion": True})
+    pts = sweep_points(load_runs([root]).runs, "nu_out")
+    assert pts["value"].tolist() == [0.01, 0.1] and set(pts["study"]) == {"accuracy"}
+    assert np.allclose(pts["speedup"], [1.0 / 0.5, 1.0 / 0.4], rtol=0, atol=EXACT_TOL)  # the accuracy study's adaptive
+    assert set(pts["error"]) == {"sync_error_px"} and pts["error_px"].tolist() == [7.0, 7.0]

@@ -36,6 +36,10 @@ MODES = ("nonadaptive", "adaptive", "viewdep")
 # Swept parameters: runs-table column -> dotted config key (present in mode viewdep / when set).
 SWEPT = {"nu_out": "mode.view.nu_out", "margin": "mode.view.margin", "T": "mode.view.anticipation_frames",
          "anticipation": "mode.view.anticipation", "l_min_px": "mode.view.l_min_px"}
+# View settings that are not swept but that a sweep's points must share (a point of a sweep differs
+# from the others in its parameter only): the occlusion test (bool) and the contact floor (m; NaN
+# when off). NaN outside mode=viewdep.
+VIEW_HELD = {"occlusion": "mode.view.occlusion", "contact_size": "mode.view.contact_size"}
 SWEPT_COLUMNS = ("nu_out", "margin", "T", "anticipation", "l_min_px", "buckling_k", "buckling_mode",
                  "resolution_factor")
 ACCURACY_KEYS = ("error_px_mean", "error_px_max", "silhouette_px_mean", "surface_px_mean", "iou_mean",
@@ -296,6 +300,9 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
         v = effective_view_setting(cfg, key)
         row[col] = (math.nan if v is None else bool(v)) if col == "anticipation" else _float(v)
     row["anticipation"] = row["anticipation"] if mode == "viewdep" else math.nan
+    for col, key in VIEW_HELD.items():
+        v = effective_view_setting(cfg, key) if mode == "viewdep" else None
+        row[col] = math.nan if v is None else (bool(v) if col == "occlusion" else _float(v))
     row["resolution_factor"] = _float(cfg.get("resolution_factor", 1.0)) if mode == "nonadaptive" else math.nan
     row["buckling_k"] = _float(buckling.get("k")) if isinstance(buckling, dict) else math.nan
     row["buckling_mode"] = (str(buckling.get("mode", "adaptive")) if isinstance(buckling, dict) else "none")
