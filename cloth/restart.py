@@ -23,10 +23,16 @@ class Restart:
     """The restart protocol (:meth:`restart_from`). Part of :class:`cloth.simulation.Simulation`
     (module docstring)."""
 
-    def restart_from(self, state: dict) -> None:
+    def restart_from(self, state: dict, own_mesh: dict | None = None) -> None:
         """Continue from a saved state of a run of the same scene (cloth.io.states with restart data,
         possibly of another mode or resolution) at its frame: the re-synchronised error starts
         every mode from the reference's state.
+
+        `own_mesh` (a state of this mode's own run at the same frame, with restart data): a
+        remeshing mode then restarts on that mesh (its topology, material coordinates, pins and
+        handle nodes) with positions and velocities transferred from `state` by material
+        coordinates, exactly as a fixed mesh takes them on its own mesh, so that every mode starts
+        from its own mesh at the same distance from the truth (the symmetric restart). Without it:
 
         The scene's time-dependent parts (body, handles' motions, camera) are functions of time
         and are set to the state's time. The cloth: a remeshing mode takes the state's mesh as it
@@ -46,7 +52,23 @@ class Restart:
         handle_ids = np.asarray(state["node_handle"])
         if handle_ids.size and int(handle_ids.max()) >= len(scene.handles):
             raise ValueError(f"the state has {int(handle_ids.max()) + 1} handles, this scene {len(scene.handles)}")
-        if self.remesher is not None:
+        if self.remesher is not None and own_mesh is not None:
+            if int(own_mesh["frame"]) != frame:
+                raise ValueError(f"own_mesh is a state of frame {int(own_mesh['frame'])}, the state of frame {frame}")
+            own_handles = np.asarray(own_mesh["node_handle"])
+            if own_handles.size and int(own_handles.max()) >= len(scene.handles):
+                raise ValueError(f"own_mesh has {int(own_handles.max()) + 1} handles, this scene {len(scene.handles)}")
+            values, _ = transfer_node_values(state, own_mesh["vert_u"], own_mesh["vert_node"], own_mesh["face_verts"])
+            scene.mesh = Mesh(node_x=np.array(values["node_x"], dtype=np.float64),
+                              node_v=np.array(values["node_v"], dtype=np.float64),
+                              node_pinned=np.array(own_mesh["node_pinned"], dtype=bool),
+                              vert_u=np.array(own_mesh["vert_u"], dtype=np.float64),
+                              vert_node=own_mesh["vert_node"], face_verts=own_mesh["face_verts"],
+                              density=scene.material.density)
+            for i, h in enumerate(scene.handles):
+                h.nodes = np.flatnonzero(own_handles == i)
+                self._restore_fixed_handle(h, h.nodes, own_mesh["handle_local"], t)
+        elif self.remesher is not None:
             scene.mesh = Mesh(node_x=np.array(state["node_x"], dtype=np.float64),
                               node_v=np.array(state["node_v"], dtype=np.float64),
                               node_pinned=np.array(state["node_pinned"], dtype=bool),

@@ -28,7 +28,15 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
 from experiments.analysis.accuracy import AccuracyError, evaluate_runs, write_accuracy
-from experiments.analysis.sync import BEFORE_CUT, EVERY, HORIZON, RESOLUTION_SCALE, check_options, write_sync
+from experiments.analysis.sync import (
+    BEFORE_CUT,
+    EVERY,
+    HORIZON,
+    RESOLUTION_SCALE,
+    RESTARTS,
+    check_options,
+    write_sync,
+)
 from experiments.analysis.sync import evaluate_run as evaluate_sync
 
 
@@ -112,14 +120,14 @@ class StudyCallback(Callback):
 
     def __init__(self, accuracy: bool = True, figures: bool = True, sync=None) -> None:
         """`sync`: None, or the options of the re-synchronised error (every, horizon, before_cut,
-        resolution_scale; experiments.sync defaults for those not given) and `reference` (default
+        resolution_scale, restart; experiments.sync defaults for those not given) and `reference` (default
         true: also the reference restarted from its own states, which measures the restart at
         the cost of the reference's frames again)."""
         self.accuracy, self.figures = bool(accuracy), bool(figures)
         self.sync = None
         if sync is not None:
             opts = {"every": EVERY, "horizon": HORIZON, "before_cut": BEFORE_CUT, "resolution_scale": RESOLUTION_SCALE,
-                    "reference": True}
+                    "reference": True, "restart": "reference_mesh"}
             unknown = set(sync) - set(opts)
             if unknown:
                 raise ValueError(f"hydra.callbacks.study.sync: unknown option(s) {sorted(unknown)}; "
@@ -128,6 +136,9 @@ class StudyCallback(Callback):
             check_options(opts["every"], opts["horizon"], opts["before_cut"], opts["resolution_scale"])
             if not isinstance(opts["reference"], bool):
                 raise ValueError(f"hydra.callbacks.study.sync.reference: true or false, got {opts['reference']!r}")
+            if opts["restart"] not in RESTARTS:
+                raise ValueError(f"hydra.callbacks.study.sync.restart: one of {', '.join(RESTARTS)}, "
+                                 f"got {opts['restart']!r}")
             self.sync = opts
 
     def on_multirun_end(self, config: DictConfig, **kwargs) -> None:

@@ -173,6 +173,43 @@ def test_a_fixed_mesh_restarts_from_a_finer_runs_state_by_interpolation(tmp_path
     assert np.all(np.isfinite(coarse.mesh.node_x))
 
 
+def test_the_symmetric_restart_puts_a_remeshing_mode_on_its_own_mesh(tmp_path):
+    """restart_from(state, own_mesh=...): a remeshing mode restarts on its own run's mesh with the
+    reference's positions transferred by material coordinates, as a fixed mesh does: at frame 0,
+    where the adaptive run's mesh is the fixed mesh of the same resolution, both restart to the
+    same positions; at frame 2 the adaptive mesh is its own and lies on the reference's cloth."""
+    def saved(sim, name):
+        return load_state(save_state(tmp_path / name, sim.mesh, sim.frame, sim.time, sim.obstacle_set.obstacles,
+                                     sim.scene.handles, restart=True))
+
+    fine_cfg = compose_config(*DANCER, "mode=nonadaptive", "scene.scales.small.resolution=20")
+    fine, _ = build_simulation(fine_cfg)
+    ref0 = saved(fine, "ref0.npz")
+    adaptive_cfg = compose_config(*DANCER, "mode=adaptive")
+    a, _ = build_simulation(adaptive_cfg)
+    own0 = saved(a, "own0.npz")
+    fixed, _ = build_simulation(compose_config(*DANCER, "mode=nonadaptive"))
+    fixed.restart_from(ref0)
+    b, _ = build_simulation(adaptive_cfg)
+    b.restart_from(ref0, own_mesh=own0)
+    assert np.array_equal(b.mesh.face_verts, fixed.mesh.face_verts)  # the same mesh ...
+    assert np.array_equal(b.mesh.node_x, fixed.mesh.node_x)  # ... given the same positions, to the bit
+    _advance(fine, 2)
+    _advance(a, 2)
+    ref2, own2 = saved(fine, "ref2.npz"), saved(a, "own2.npz")
+    c, _ = build_simulation(adaptive_cfg)
+    c.restart_from(ref2, own_mesh=own2)
+    assert c.mesh.n_faces == a.mesh.n_faces and np.array_equal(c.mesh.vert_u, a.mesh.vert_u)
+    from cloth.collision.nearest import point_mesh_distance
+    assert point_mesh_distance(c.mesh.node_x, fine.mesh.node_x, fine.mesh.face_nodes)[0].max() < 0.01
+    h = c.scene.handles[0]
+    assert np.allclose(c.mesh.node_x[h.nodes], h.targets(fine.time), atol=ROUNDOFF)  # on its own motion
+    with pytest.raises(ValueError, match="own_mesh is a state of frame 0"):
+        build_simulation(adaptive_cfg)[0].restart_from(ref2, own_mesh=own0)
+    c.advance_frame()
+    assert np.all(np.isfinite(c.mesh.node_x))
+
+
 def test_a_state_of_another_frame_time_is_refused(tmp_path):
     a, _ = build_simulation(compose_config(*DANCER))
     f = save_state(tmp_path / "s.npz", a.mesh, 3, 0.1, a.obstacle_set.obstacles, a.scene.handles, restart=True)
@@ -271,6 +308,27 @@ def test_sync_cli_measures_each_run_and_the_reference_against_itself_is_zero(syn
     assert self_error.max() < SELF_RESTART_PX
     fixed = pd.read_parquet(runs[1] / "sync.parquet")
     assert fixed["faces_mean"].iloc[0] < pd.read_parquet(runs[0] / "sync.parquet")["faces_mean"].iloc[0]
+
+
+def test_sync_restarts_a_remeshing_mode_on_its_own_mesh_and_records_the_error_at_h0(sync_runs, tmp_path):
+    from experiments.analysis.sync import main
+
+    ref = sync_runs / "ref"
+    runs = {name: tmp_path / name for name in ("ref", "adaptive")}
+    for name, d in runs.items():
+        shutil.copytree(sync_runs / name, d)
+    assert main([*map(str, runs.values()), "--reference", str(ref), "--every", "2", "--horizon", "2",
+                 "--resolution-scale", "0.25", "--restart", "own_mesh"]) == 0
+    for d in runs.values():
+        table = pd.read_parquet(d / "sync.parquet")
+        assert np.all(np.isfinite(table["sync_error_h0_px"])) and np.all(np.isfinite(table["sync_error_px"]))
+        s = json.loads((d / "sync.json").read_text())
+        assert s["restart"] == "own_mesh" and s["sync_error_h0_px_mean"] is not None
+    assert pd.read_parquet(runs["ref"] / "sync.parquet")["sync_error_h0_px"].max() < SELF_RESTART_PX  # itself
+    bare = tmp_path / "no_states"
+    shutil.copytree(sync_runs / "adaptive", bare)
+    shutil.rmtree(bare / "states")
+    assert main([str(bare), "--reference", str(ref), "--every", "2", "--horizon", "2", "--restart", "own_mesh"]) == 2
 
 
 def test_sync_refuses_a_reference_without_restart_data_and_bad_options(sync_runs, tmp_path, capsys):

@@ -2,6 +2,7 @@
 
     python -m experiments.sync RUN_DIR [RUN_DIR ...] --reference REF_DIR [--every 10] [--horizon 8]
                                [--before-cut 5] [--resolution-scale 0.5]
+                               [--restart reference_mesh|own_mesh]
 
 A swirling skirt is chaotic: two runs that differ by round-off follow unrelated trajectories
 within about a second, so the error of a whole run against a reference soon measures "two
@@ -15,19 +16,32 @@ cloth the reference shows (cloth.eval.correspondence). The sync frames are 0, ev
 and ``--before-cut`` frames before each camera cut (what anticipation is for), as long as the
 window ends within the run.
 
-The run folder's config.yaml says how to build the run (its mode and settings); nothing of the
-run's own trajectory is used, so a run of any length can be evaluated. The reference needs
+``--restart`` says on which mesh a remeshing mode restarts. ``reference_mesh`` (the default): on
+the reference's own fine mesh, which it coarsens on its first frame. ``own_mesh`` (the symmetric
+restart): on the mesh its own run had at the sync frame (the run's saved state of that frame),
+with positions and velocities transferred from the reference by material coordinates exactly as
+a fixed mesh takes them on its own mesh, so that every mode starts from its own mesh at the same
+kind of distance from the truth; the run then needs its own states with restart data at every
+sync frame (output.states_every=1). A fixed mesh restarts on its own mesh either way. Every
+window also records ``sync_error_h0_px``: the error right after the restart, before any step
+(what the transfer alone costs).
+
+The run folder's config.yaml says how to build the run (its mode and settings); with
+``--restart reference_mesh`` nothing of the run's own trajectory is used, so a run of any length
+can be evaluated. The reference needs
 per-frame states with restart data (written by this code's runner with output.states_every=1)
 at every sync frame and every window's end. Writes into each RUN_DIR:
 
 * ``sync.parquet``: one row per window: sync_frame, frame (its end), before_cut (a window
-  ending just after a cut's lead), sync_error_px, sync_error_p90_px, sync_samples, faces_mean
+  ending just after a cut's lead), sync_error_px, sync_error_p90_px, sync_samples,
+  sync_error_h0_px (at the window's start, right after the restart), faces_mean
   (the run's faces over the window's frames), sim_s (its simulation time per frame) and
   diverged (the window stopped: its error is NaN);
 * ``sync.json``: ``sync_error_px_mean`` with its 90 % BCa bootstrap interval over the windows (scipy.stats.bootstrap)
   (``sync_error_px_lo`` / ``_hi``, BOOTSTRAP resamples, seeded), ``sync_error_px_cut_mean``
   (windows before a cut), ``sim_s_mean``, ``faces_mean``, ``windows``, ``every``, ``horizon``,
-  ``before_cut``, ``reference``, ``resolution_scale`` and ``definition``.
+  ``before_cut``, ``reference``, ``resolution_scale``, ``restart``, ``sync_error_h0_px_mean`` and
+  ``definition``.
 
 Refused before any work, with one message (exit code 2): a run of another scene, camera or
 frame time than the reference, a crowd, a reference without restart states where they are needed.
@@ -56,9 +70,10 @@ from experiments.analysis.accuracy import bootstrap_mean_interval as bootstrap_i
 from experiments.build import ConfigError, build_simulation, camera_path, crowd_size
 
 EVERY, HORIZON, BEFORE_CUT = 10, 8, 5  # frames: the issue's defaults
+RESTARTS = ("reference_mesh", "own_mesh")  # on which mesh a remeshing mode restarts (module docstring)
 RESOLUTION_SCALE = 0.5  # rendered image / camera image: samples every 2 camera pixels (distances stay in camera px)
-COLUMNS = ("sync_frame", "frame", "before_cut", "sync_error_px", "sync_error_p90_px", "sync_samples", "faces_mean",
-           "sim_s", "diverged")
+COLUMNS = ("sync_frame", "frame", "before_cut", "sync_error_px", "sync_error_p90_px", "sync_samples",
+           "sync_error_h0_px", "faces_mean", "sim_s", "diverged")
 
 
 def definition() -> str:
@@ -82,7 +97,7 @@ def _cut_frames(path, frame_time: float) -> list[int]:
     return [int(round(c / frame_time)) for c in getattr(path, "cuts", ())]
 
 
-def plan(run_dir: Path, ref_dir: Path, every: int, horizon: int, before_cut: int):
+def plan(run_dir: Path, ref_dir: Path, every: int, horizon: int, before_cut: int, restart: str = "reference_mesh"):
     """(config, camera path, [(sync frame, before_cut)]) of a run; AccuracyError names what is wrong."""
     check_configs(run_dir, ref_dir)
     cfg = OmegaConf.load(run_dir / "config.yaml")
@@ -107,20 +122,47 @@ def plan(run_dir: Path, ref_dir: Path, every: int, horizon: int, before_cut: int
             require_restart(load_state(states[f][0]), states[f][0])
         except StateError as exc:
             raise AccuracyError(str(exc)) from None
+    if restart == "own_mesh" and sim.remesher is not None:  # its own mesh at every sync frame
+        own = state_files(run_dir)
+        missing = [s for s, _ in windows if s not in own]
+        if missing:
+            raise AccuracyError(f"{run_dir}: --restart own_mesh needs the run's own state at every sync frame; it has "
+                                f"none for frames {missing[:5]}; run it with output.states_every=1")
+        for s, _ in windows:
+            try:
+                require_restart(load_state(own[s][0]), own[s][0])
+            except StateError as exc:
+                raise AccuracyError(str(exc)) from None
     return cfg, path, windows
 
 
+def _error(sim, path, ref: dict, resolution_scale: float) -> dict:
+    """correspondence_error of the simulation's cloth now against the reference state `ref`."""
+    camera = path.camera_at(ref["time"])
+    image = render_state(camera, ref, resolution_scale)
+    mesh = sim.mesh
+    run = {"node_x": mesh.node_x, "vert_u": mesh.vert_u, "vert_node": mesh.vert_node, "face_verts": mesh.face_verts}
+    return correspondence_error(camera, image, ref, run)
+
+
 def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, before_cut: int = BEFORE_CUT,
-                 resolution_scale: float = RESOLUTION_SCALE, log=None) -> pd.DataFrame:
-    """The windows of one run against the reference (COLUMNS, one row per window); writes nothing."""
+                 resolution_scale: float = RESOLUTION_SCALE, log=None, restart: str = "reference_mesh") -> pd.DataFrame:
+    """The windows of one run against the reference (COLUMNS, one row per window); writes nothing.
+    `restart`: one of RESTARTS (module docstring)."""
     run_dir, ref_dir = Path(run_dir), Path(ref_dir)
-    cfg, path, windows = plan(run_dir, ref_dir, every, horizon, before_cut)
+    if restart not in RESTARTS:
+        raise AccuracyError(f"--restart must be one of {', '.join(RESTARTS)}, got {restart!r}")
+    cfg, path, windows = plan(run_dir, ref_dir, every, horizon, before_cut, restart)
     states = state_files(ref_dir)
+    own = state_files(run_dir) if restart == "own_mesh" else {}
     rows = []
     for s, cut in windows:
         t0 = time.perf_counter()
         sim, _ = build_simulation(cfg)
-        sim.restart_from(load_state(states[s][0]))
+        start = load_state(states[s][0])
+        own_mesh = load_state(own[s][0]) if sim.remesher is not None and s in own else None
+        sim.restart_from(start, own_mesh=own_mesh)
+        h0 = _error(sim, path, start, resolution_scale)["sync_error_px"]
         faces, sim_s, diverged = [], 0.0, False
         try:
             for _ in range(horizon):
@@ -130,16 +172,10 @@ def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, b
         except SimulationDiverged:
             diverged = True
         row = {"sync_frame": s, "frame": s + horizon, "before_cut": cut, "faces_mean": float(np.mean(faces or [0])),
-               "sim_s": sim_s / max(len(faces), 1), "diverged": diverged,
+               "sim_s": sim_s / max(len(faces), 1), "diverged": diverged, "sync_error_h0_px": h0,
                "sync_error_px": math.nan, "sync_error_p90_px": math.nan, "sync_samples": 0}
         if not diverged:
-            ref = load_state(states[s + horizon][0])
-            camera = path.camera_at(ref["time"])
-            image = render_state(camera, ref, resolution_scale)
-            mesh = sim.mesh
-            run = {"node_x": mesh.node_x, "vert_u": mesh.vert_u, "vert_node": mesh.vert_node,
-                   "face_verts": mesh.face_verts}
-            row.update(correspondence_error(camera, image, ref, run))
+            row.update(_error(sim, path, load_state(states[s + horizon][0]), resolution_scale))
         rows.append(row)
         if log:
             log(f"  {run_dir.name}: window {s}..{s + horizon}{' (before a cut)' if cut else ''}: "
@@ -171,11 +207,13 @@ def read_windows(run_dir) -> pd.Series | None:
     return t.set_index("sync_frame")["sync_error_px"].astype(float)
 
 
-def summarize(table: pd.DataFrame, ref_dir, every, horizon, before_cut, resolution_scale) -> dict:
+def summarize(table: pd.DataFrame, ref_dir, every, horizon, before_cut, resolution_scale,
+              restart: str = "reference_mesh") -> dict:
     err = table["sync_error_px"].to_numpy(dtype=np.float64)
     ok = np.isfinite(err)
     lo, hi = bootstrap_interval(err)
     cut = table["before_cut"].to_numpy(bool) & ok
+    h0 = table["sync_error_h0_px"].to_numpy(float) if "sync_error_h0_px" in table.columns else np.zeros(0)
     nan_or = lambda a: float(np.mean(a)) if a.size else None  # noqa: E731
     return {"sync_error_px_mean": nan_or(err[ok]), "sync_error_px_lo": None if math.isnan(lo) else lo,
             "sync_error_px_hi": None if math.isnan(hi) else hi, "sync_error_px_cut_mean": nan_or(err[cut]),
@@ -184,13 +222,15 @@ def summarize(table: pd.DataFrame, ref_dir, every, horizon, before_cut, resoluti
             "windows": int(len(table)), "windows_diverged": int(table["diverged"].sum()),
             "every": int(every), "horizon": int(horizon), "before_cut": int(before_cut),
             "reference": str(Path(ref_dir).resolve()), "resolution_scale": float(resolution_scale),
+            "restart": restart,
+            "sync_error_h0_px_mean": nan_or(h0[np.isfinite(h0)]),
             "definition": definition()}
 
 
 def write_sync(run_dir, table: pd.DataFrame, ref_dir, every=EVERY, horizon=HORIZON, before_cut=BEFORE_CUT,
-               resolution_scale=RESOLUTION_SCALE) -> dict:
+               resolution_scale=RESOLUTION_SCALE, restart: str = "reference_mesh") -> dict:
     """sync.parquet and sync.json into `run_dir` (atomically); returns the summary."""
-    summary = summarize(table, ref_dir, every, horizon, before_cut, resolution_scale)
+    summary = summarize(table, ref_dir, every, horizon, before_cut, resolution_scale, restart)
     write_parquet_atomic(Path(run_dir) / "sync.parquet", table)
     write_json_atomic(Path(run_dir) / "sync.json", summary)
     return summary
@@ -214,18 +254,21 @@ def main(argv=None) -> int:
     ap.add_argument("--before-cut", type=int, default=BEFORE_CUT, help="a sync frame this many frames before each cut")
     ap.add_argument("--resolution-scale", type=float, default=RESOLUTION_SCALE,
                     help="rendered image / camera image (distances stay in camera pixels)")
+    ap.add_argument("--restart", choices=RESTARTS, default="reference_mesh",
+                    help="a remeshing mode restarts on the reference's mesh, or on its own run's mesh (symmetric)")
     args = ap.parse_args(argv)
     try:
         check_options(args.every, args.horizon, args.before_cut, args.resolution_scale)
         for d in args.runs:  # every run checked before any work
-            plan(Path(d), Path(args.reference), args.every, args.horizon, args.before_cut)
+            plan(Path(d), Path(args.reference), args.every, args.horizon, args.before_cut, args.restart)
     except (AccuracyError, ConfigError) as exc:
         print(f"sync error: {exc}", file=sys.stderr)
         return 2
     for d in args.runs:
         table = evaluate_run(d, args.reference, args.every, args.horizon, args.before_cut, args.resolution_scale,
-                             log=print)
-        s = write_sync(d, table, args.reference, args.every, args.horizon, args.before_cut, args.resolution_scale)
+                             log=print, restart=args.restart)
+        s = write_sync(d, table, args.reference, args.every, args.horizon, args.before_cut, args.resolution_scale,
+                       args.restart)
         fmt = lambda v: "n/a" if v is None else f"{v:.3g}"  # noqa: E731
         print(f"{d}: {s['windows']} windows  sync error {fmt(s['sync_error_px_mean'])} px "
               f"(90% {fmt(s['sync_error_px_lo'])}-{fmt(s['sync_error_px_hi'])})  sim {fmt(s['sim_s_mean'])} s/frame "
