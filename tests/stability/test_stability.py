@@ -65,9 +65,11 @@ def test_a_bad_argument_stops_before_any_run(argv, tmp_path, capsys):
     assert not any(tmp_path.iterdir())
 
 
-def _fake_run_case(calls):
-    def run(c, frames, scale, seed):
+def _fake_run_case(calls, folders=None):
+    def run(c, frames, scale, seed, checkpoints=None):
         calls.append((c.name, seed))
+        if folders is not None:
+            folders.append(checkpoints)
         return {"case": c.name, "seed": seed, "what": c.what, "frames": frames, "error": "", "frames_run": frames,
                 "max_kinetic_energy_j": 0.1, "kinetic_energy_bound_j": 1.0, "min_face_quality": 0.3,
                 "steps_rejected": 0, "s_per_frame": 0.1, "ok": True}
@@ -81,12 +83,14 @@ def test_resume_keeps_the_runs_an_earlier_suite_finished(tmp_path, monkeypatch):
 
     import experiments.stability as stability
 
-    calls = []
-    monkeypatch.setattr(stability, "run_case", _fake_run_case(calls))
+    calls, folders = [], []
+    monkeypatch.setattr(stability, "run_case", _fake_run_case(calls, folders))
     first = tmp_path / "first.md"
     stability.main(["--scale", "small", "--cases", "crushed_sheet", "--seeds", "1", "--out", str(tmp_path / "a"),
                     "--report", str(first)])
     assert calls == [("crushed_sheet", 0)]
+    # each run keeps its checkpoint under --out, where the next suite with that --out finds it
+    assert folders == [tmp_path / "a" / "checkpoints" / "small_crushed_sheet_seed0_40f"]
     earlier = pd.read_csv(first.with_suffix(".csv"))
     assert list(earlier["case"]) == ["crushed_sheet"] and earlier["commit"].notna().all()
     calls.clear()
