@@ -19,6 +19,22 @@ from cloth.core.transfer import transfer_node_values
 from cloth.stepcontrol import MAX_STEP_HALVINGS
 
 
+def _handle_ids(state: dict, n_handles: int, what: str) -> np.ndarray:
+    """The state's node_handle (N,); ValueError when it names more handles than the scene has."""
+    ids = np.asarray(state["node_handle"])
+    if ids.size and int(ids.max()) >= n_handles:
+        raise ValueError(f"{what} has {int(ids.max()) + 1} handles, this scene {n_handles}")
+    return ids
+
+
+def _mesh_of(topology: dict, node_x, node_v, density: float) -> Mesh:
+    """A Mesh with a state's topology (material coordinates, verts, faces, pins) at `node_x`, `node_v`."""
+    return Mesh(node_x=np.array(node_x, dtype=np.float64), node_v=np.array(node_v, dtype=np.float64),
+                node_pinned=np.array(topology["node_pinned"], dtype=bool),
+                vert_u=np.array(topology["vert_u"], dtype=np.float64),
+                vert_node=topology["vert_node"], face_verts=topology["face_verts"], density=density)
+
+
 class Restart:
     """The restart protocol (:meth:`restart_from`). Part of :class:`cloth.simulation.Simulation`
     (module docstring)."""
@@ -49,32 +65,18 @@ class Restart:
         if not abs(t - float(state["time"])) <= 1e-9 * max(1.0, abs(t)):
             raise ValueError(f"state of frame {frame} is at t = {state['time']} s, but frame {frame} of this "
                              f"scene is at {t} s (another frame time)")
-        handle_ids = np.asarray(state["node_handle"])
-        if handle_ids.size and int(handle_ids.max()) >= len(scene.handles):
-            raise ValueError(f"the state has {int(handle_ids.max()) + 1} handles, this scene {len(scene.handles)}")
+        handle_ids = _handle_ids(state, len(scene.handles), "the state")
         if self.remesher is not None and own_mesh is not None:
             if int(own_mesh["frame"]) != frame:
                 raise ValueError(f"own_mesh is a state of frame {int(own_mesh['frame'])}, the state of frame {frame}")
-            own_handles = np.asarray(own_mesh["node_handle"])
-            if own_handles.size and int(own_handles.max()) >= len(scene.handles):
-                raise ValueError(f"own_mesh has {int(own_handles.max()) + 1} handles, this scene {len(scene.handles)}")
+            own_handles = _handle_ids(own_mesh, len(scene.handles), "own_mesh")
             values, _ = transfer_node_values(state, own_mesh["vert_u"], own_mesh["vert_node"], own_mesh["face_verts"])
-            scene.mesh = Mesh(node_x=np.array(values["node_x"], dtype=np.float64),
-                              node_v=np.array(values["node_v"], dtype=np.float64),
-                              node_pinned=np.array(own_mesh["node_pinned"], dtype=bool),
-                              vert_u=np.array(own_mesh["vert_u"], dtype=np.float64),
-                              vert_node=own_mesh["vert_node"], face_verts=own_mesh["face_verts"],
-                              density=scene.material.density)
+            scene.mesh = _mesh_of(own_mesh, values["node_x"], values["node_v"], scene.material.density)
             for i, h in enumerate(scene.handles):
                 h.nodes = np.flatnonzero(own_handles == i)
                 self._restore_fixed_handle(h, h.nodes, own_mesh["handle_local"], t)
         elif self.remesher is not None:
-            scene.mesh = Mesh(node_x=np.array(state["node_x"], dtype=np.float64),
-                              node_v=np.array(state["node_v"], dtype=np.float64),
-                              node_pinned=np.array(state["node_pinned"], dtype=bool),
-                              vert_u=np.array(state["vert_u"], dtype=np.float64),
-                              vert_node=state["vert_node"], face_verts=state["face_verts"],
-                              density=scene.material.density)
+            scene.mesh = _mesh_of(state, state["node_x"], state["node_v"], scene.material.density)
             for i, h in enumerate(scene.handles):
                 h.nodes = np.flatnonzero(handle_ids == i)
                 h.local = np.array(state["handle_local"][h.nodes], dtype=np.float64)
