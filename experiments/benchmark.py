@@ -2,7 +2,7 @@
 
     python -m experiments.benchmark [--resolutions 32 64 128 256] [--frames 6] [--warmup 12]
                                     [--solver auto|cholesky|pcg|direct] [--out DIR]
-                                    [--bending-hessian projected|gauss_newton|both]
+                                    [--bending-hessian projected|gauss_newton|both] [--against REV]
     python -m experiments.benchmark --modes [--scene sheet_on_sphere] [--camera sheet_half]
                                     [--frames 20] [--warmup 10] [--out DIR]
     python -m experiments.benchmark --scene karate|solo_dancer|PATH/conf/sphere.json
@@ -27,6 +27,12 @@ writes `scene.csv` and `summary.json`.
 Gauss-Newton one (solver.bending_hessian), one after the other on the same sheet, and prints the
 ratio of their physics and step times at each resolution (projected over Gauss-Newton).
 
+`--against REV` times a previous commit on the same sheets in the same run: for each resolution,
+REV's own benchmark (its tree exported with `git archive` into a temporary folder and run there
+as a subprocess, with the same frames, warm-up and solver) and then this tree's, one after the
+other, so that both meet the same machine load; it prints REV's time over this tree's per phase
+(above 1: this tree is faster) and writes `against.csv`.
+
 A benchmark, not a test: it prints ratios measured in one run and writes
 `<out>/<timestamp>/steps.csv` (default out: results/benchmark) (one row per resolution: seconds per step by phase,
 microseconds per face per step, the share of step time outside compiled kernels and the
@@ -41,6 +47,10 @@ calls per step); the solve's own time is its phase.
 from __future__ import annotations
 
 import argparse
+import os
+import subprocess
+import sys
+import tempfile
 import time
 from datetime import datetime
 from pathlib import Path
@@ -63,7 +73,8 @@ from cloth.simulation import Simulation
 
 COTTON = dict(name="cotton", density=0.12, youngs_modulus=2.0e3, poisson_ratio=0.3,
               bending_stiffness=5e-6, damping_mass=0.05, damping_stiffness=2e-3)
-CONF = Path(__file__).resolve().parents[1] / "conf"
+ROOT = Path(__file__).resolve().parents[1]
+CONF = ROOT / "conf"
 KERNEL_MODULES = (cloth.physics.assembly, cloth.collision.contact, cloth.physics.forces, cloth.physics.integrator,
                   cloth.collision.obstacles)
 
@@ -191,6 +202,58 @@ def bench_modes(scene: str, camera: str, frames: int, warmup: int, extra: list[s
     return out
 
 
+def resolve_revision(rev: str) -> str:
+    """The full commit of `rev` in this repository, or ValueError naming it."""
+    done = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--verify", "--quiet", f"{rev}^{{commit}}"],
+                          capture_output=True, text=True)
+    if done.returncode != 0:
+        raise ValueError(f"--against {rev!r}: not a commit of {ROOT}")
+    return done.stdout.strip()
+
+
+def export_revision(commit: str, dest: Path) -> Path:
+    """Commit's tree written into `dest` (git archive), checked to import its own `cloth`."""
+    dest.mkdir(parents=True, exist_ok=True)
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", "--format=tar", commit],
+                             capture_output=True, check=True)
+    subprocess.run(["tar", "-x", "-C", str(dest)], input=archive.stdout, check=True)
+    probe = subprocess.run([sys.executable, "-c", "import cloth; print(cloth.__file__)"], cwd=dest,
+                           env=_revision_env(dest), capture_output=True, text=True)
+    if probe.returncode != 0 or not Path(probe.stdout.strip()).resolve().is_relative_to(dest.resolve()):
+        raise RuntimeError(f"the exported tree of {commit[:12]} does not import its own cloth package "
+                           f"({probe.stdout.strip() or probe.stderr.strip()[-300:]})")
+    return dest
+
+
+def _revision_env(src: Path) -> dict:
+    path = [str(src), *filter(None, [os.environ.get("PYTHONPATH")])]
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(path)}
+
+
+def bench_revision(src: Path, resolution: int, frames: int, warmup: int, solver: str, out: Path) -> dict:
+    """One resolution timed by the benchmark of the tree at `src` (a subprocess); its steps.csv row."""
+    before = set(out.iterdir()) if out.exists() else set()
+    cmd = [sys.executable, "-m", "experiments.benchmark", "--resolutions", str(resolution), "--frames", str(frames),
+           "--warmup", str(warmup), "--solver", solver, "--out", str(out)]
+    done = subprocess.run(cmd, cwd=src, env=_revision_env(src), capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"the benchmark of {src.name} failed (exit {done.returncode}): {done.stderr.strip()[-600:]}")
+    (folder,) = set(out.iterdir()) - before
+    return pd.read_csv(folder / "steps.csv").iloc[0].to_dict()
+
+
+def against_row(rev: dict, head: dict) -> dict:
+    """REV's seconds per step over this tree's, per phase both record and overall (>1: this tree is faster)."""
+    row = {"resolution": head["resolution"], "faces_rev": int(rev["faces"]), "faces": int(head["faces"]),
+           "s_per_step_rev": float(rev["s_per_step"]), "s_per_step": float(head["s_per_step"]),
+           "speedup": float(rev["s_per_step"]) / float(head["s_per_step"])}
+    for p in PHASES:
+        key = f"{p}_s_per_step"
+        if key in rev and float(head[key]) > 0:
+            row[f"{p}_speedup"] = float(rev[key]) / float(head[key])
+    return row
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--resolutions", type=int, nargs="+", default=[32, 64, 128, 256],
@@ -202,6 +265,8 @@ def main(argv=None) -> None:
     parser.add_argument("--bending-hessian", choices=(*BENDING_HESSIANS, "both"), default="projected",
                         help="the bending term's Hessian (solver.bending_hessian); both: each resolution with each, "
                              "and their ratio")
+    parser.add_argument("--against", default=None, metavar="REV",
+                        help="time commit REV's benchmark on the same sheets in the same run and print the speed-up")
     parser.add_argument("--out", type=Path, default=Path("results/benchmark"))
     parser.add_argument("--modes", action="store_true", help="the three modes at matched mean faces, per phase")
     parser.add_argument("--scene", default=None,
@@ -218,6 +283,14 @@ def main(argv=None) -> None:
     if args.scene is None and args.overrides and not args.modes:
         parser.error("overrides (key=value) go with --modes or --scene")
     solver = SolverOptions(method=args.solver)  # a method that cannot run here stops before any work
+    against = None
+    if args.against is not None:
+        if args.modes or args.scene is not None or args.bending_hessian == "both":
+            parser.error("--against: with the sheet benchmark only (not --modes, --scene or --bending-hessian both)")
+        try:
+            against = resolve_revision(args.against)
+        except ValueError as err:
+            parser.error(str(err))
     hessians = BENDING_HESSIANS if args.bending_hessian == "both" else (args.bending_hessian,)
     if (args.modes or args.scene is not None) and args.bending_hessian == "both":
         parser.error("--bending-hessian both: not with --modes or --scene (run each, or give "
@@ -274,22 +347,39 @@ def main(argv=None) -> None:
                     print(f"    {part:10s} {row[f'collisions_{part}_us_per_face_step']:8.2f}")
         print(f"  {'all':12s} {row['us_per_face_step']:8.2f}   results in {out_dir}")
         return
-    rows = []
-    for r in args.resolutions:
-        for hessian in hessians:
-            row = bench(r, frames, warmup, SolverOptions(method=args.solver, bending_hessian=hessian))
-            rows.append(row)
-            _print_row(row, len(hessians) > 1)
-        if len(hessians) > 1:
-            p, g = rows[-2], rows[-1]
-            print(f"    projected / gauss_newton: physics {p['physics_s_per_step'] / g['physics_s_per_step']:.2f}x, "
-                  f"step {p['s_per_step'] / g['s_per_step']:.2f}x", flush=True)
+    rows, compared = [], []
+    with tempfile.TemporaryDirectory(prefix="cloth-against-") as tmp:
+        src = export_revision(against, Path(tmp) / against[:12]) if against else None
+        for r in args.resolutions:
+            if src is not None:  # REV first, then this tree, resolution by resolution: the same load for both
+                rev_row = bench_revision(src, r, frames, warmup, args.solver, Path(tmp) / "out")
+            for hessian in hessians:
+                row = bench(r, frames, warmup, SolverOptions(method=args.solver, bending_hessian=hessian))
+                rows.append(row)
+                _print_row(row, len(hessians) > 1)
+            if len(hessians) > 1:
+                p, g = rows[-2], rows[-1]
+                print(f"    projected / gauss_newton: physics "
+                      f"{p['physics_s_per_step'] / g['physics_s_per_step']:.2f}x, "
+                      f"step {p['s_per_step'] / g['s_per_step']:.2f}x", flush=True)
+            if src is not None:
+                compared.append(against_row(rev_row, rows[-1]))
+                c = compared[-1]
+                parts = ", ".join(f"{p} {c[f'{p}_speedup']:.2f}x" for p in PHASES if f"{p}_speedup" in c)
+                print(f"    {args.against} / this tree: step {c['speedup']:.2f}x ({parts})", flush=True)
+        _finish_resolutions(rows, compared, args, against, hessians, solver, out_dir)
+
+
+def _finish_resolutions(rows, compared, args, against, hessians, solver, out_dir) -> None:
     df = pd.DataFrame(rows)
     write_text_atomic(out_dir / "steps.csv", df.to_csv(index=False))
     fit = df[df["bending_hessian"] == hessians[0]]
     slope = float(np.polyfit(np.log(fit["faces"]), np.log(fit["s_per_step"]), 1)[0]) if len(fit) > 1 else float("nan")
     summary = {"growth_exponent": slope, "solver": resolve_method(solver.method), "rows": rows,
                "manifest": environment_manifest(0)}
+    if against is not None:
+        write_text_atomic(out_dir / "against.csv", pd.DataFrame(compared).to_csv(index=False))
+        summary["against"] = {"rev": args.against, "commit": against, "rows": compared}
     write_json_atomic(out_dir / "summary.json", summary)
     print(f"time grows as faces^{slope:.2f} (1.00 = linear; {hessians[0]} Hessian); results in {out_dir}")
 

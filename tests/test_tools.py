@@ -107,6 +107,37 @@ def test_benchmark_times_a_scene_by_phase_and_collision_part(tmp_path, capsys):
     assert "no such ARCSim configuration" in capsys.readouterr().err
 
 
+def test_benchmark_against_refuses_an_unknown_revision_before_any_work(tmp_path, capsys):
+    from experiments.benchmark import main
+    with pytest.raises(SystemExit) as stop:
+        main(["--against", "no-such-revision-0123", "--out", str(tmp_path / "out")])
+    assert stop.value.code == 2 and "--against 'no-such-revision-0123': not a commit" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+    with pytest.raises(SystemExit):
+        main(["--against", "HEAD", "--modes", "--out", str(tmp_path / "out")])
+    assert "with the sheet benchmark only" in capsys.readouterr().err
+
+
+def test_benchmark_against_exports_a_tree_that_imports_its_own_package(tmp_path):
+    """The compared commit runs from its own files, not from this checkout's installed package."""
+    from experiments.benchmark import export_revision, resolve_revision
+    commit = resolve_revision("HEAD")
+    src = export_revision(commit, tmp_path / "rev")
+    assert (src / "cloth" / "simulation.py").is_file() and (src / "experiments" / "benchmark.py").is_file()
+    assert len(commit) == 40
+
+
+def test_benchmark_against_row_is_the_previous_time_over_this_trees():
+    from experiments.benchmark import against_row
+    rev = {"faces": 32, "s_per_step": 0.3, "physics_s_per_step": 0.2, "solve_s_per_step": 0.1}
+    head = {"resolution": 4, "faces": 32, "s_per_step": 0.1, "physics_s_per_step": 0.05, "solve_s_per_step": 0.05,
+            "remesh_s_per_step": 0.0}
+    row = against_row(rev, head)
+    assert row["speedup"] == pytest.approx(3.0) and row["physics_speedup"] == pytest.approx(4.0)
+    assert row["solve_speedup"] == pytest.approx(2.0)
+    assert "remesh_speedup" not in row  # a phase the previous commit does not record is not compared
+
+
 def test_a_killed_stability_run_continues_from_its_checkpoint(tmp_path, monkeypatch):
     """A run stopped after its checkpoint of frame 2 (as a kill would) leaves it; the next suite
     continues from it and ends with the figures of a run never stopped, and no checkpoint left."""
