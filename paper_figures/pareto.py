@@ -105,15 +105,26 @@ def equal_quality_fixed(g: pd.DataFrame, measure: str, err: pd.Series, lo, hi) -
     return None
 
 
+def _other_units(r, measure: str) -> dict:
+    """The re-synchronised error in millimetres on the cloth (error_mm, with its interval) and in
+    pixels of a 1080p image (error_px1080): NaN for the whole-run measure or an older evaluation."""
+    sync = measure == "sync_error_px"
+    get = lambda key: float(getattr(r, key, np.nan)) if sync else np.nan  # noqa: E731
+    return {"error_mm": get("sync_error_mm_mean"), "error_lo_mm": get("sync_error_mm_lo"),
+            "error_hi_mm": get("sync_error_mm_hi"), "error_px1080": get("sync_error_px1080_mean")}
+
+
 def pareto_table(runs: pd.DataFrame) -> pd.DataFrame:
-    """One row per run with accuracy (never a reference): scene, scale, mode, variant, run,
-    time_mean_s, error (the measure: sync_error_px or error_px), error_px (its mean), error_lo_px /
-    error_hi_px (its 90 % interval; NaN for error_px), faces_mean, speedup (against the adaptive run
-    of the scene in the same study and seed: a study's runs share a commit and a machine; NaN when
-    that study has none), on_front, equal_quality (the coarsest fixed mesh whose error is not told
-    apart as worse than adaptive's: :func:`equal_quality_fixed`), floor_px (the reference ensemble's
-    chaos floor over the whole run; NaN with one reference) and visible_distance (the statistics of
-    visible cloth per shot, in spreads of the ensemble: cloth.eval.visible; NaN with one reference)."""
+    """One row per run with accuracy (never a reference): scene, scale, mode, variant, run, time_mean_s,
+    error (the measure: sync_error_px or error_px), error_px (its mean), error_lo_px / error_hi_px
+    (its 90 % interval; NaN for error_px), error_mm / error_lo_mm / error_hi_mm and error_px1080
+    (the re-synchronised error in mm on the cloth and in 1080p pixels), faces_mean, speedup (against
+    the adaptive run of the scene in the same study and seed: a study's runs share a commit and a
+    machine; NaN when that study has none), on_front, equal_quality (the coarsest fixed mesh whose
+    error is not told apart as worse than adaptive's: :func:`equal_quality_fixed`), floor_px (the
+    reference ensemble's chaos floor over the whole run; NaN with one reference) and
+    visible_distance (the statistics of visible cloth per shot, in spreads of the ensemble:
+    cloth.eval.visible; NaN with one reference)."""
     if runs.empty:
         return pd.DataFrame()
     pts = runs[~runs["reference"].astype(bool) & runs["error_px_mean"].notna() & runs["time_mean_s"].notna()]
@@ -128,7 +139,8 @@ def pareto_table(runs: pd.DataFrame) -> pd.DataFrame:
             rows.append({"scene": scene, "scale": scale, "mode": r.mode, "variant": r.variant or r.mode, "run": r.run,
                          "time_mean_s": r.time_mean_s, "error": measure, "error_px": float(err.iloc[i]),
                          "error_lo_px": float(lo.iloc[i]) if lo is not None else np.nan,
-                         "error_hi_px": float(hi.iloc[i]) if hi is not None else np.nan, "faces_mean": r.faces_mean,
+                         "error_hi_px": float(hi.iloc[i]) if hi is not None else np.nan,
+                         **_other_units(r, measure), "faces_mean": r.faces_mean,
                          "speedup": base["time_mean_s"] / r.time_mean_s if base is not None else np.nan,
                          "on_front": bool(on), "equal_quality": r.run == baseline,
                          "floor_px": getattr(r, "floor_px_mean", np.nan),

@@ -91,12 +91,17 @@ def test_pareto_table_uses_the_resynchronised_error_and_its_interval(tmp_path):
                                               ("viewdep", 1.5, 3.9, 3.0, 4.6))):
         write_run(tmp_path / f"{i}_{mode}", s, mode, [50] * 4, [30] * 4, [t] * 4, study="accuracy",
                   accuracy={"error_px_mean": 60.0}, sync={"sync_error_px_mean": e, "sync_error_px_lo": lo,
-                                                          "sync_error_px_hi": hi, "windows": 15, "horizon": 8})
+                                                          "sync_error_px_hi": hi, "windows": 15, "horizon": 8,
+                                                          "sync_error_mm_mean": 2 * e, "sync_error_mm_lo": 2 * lo,
+                                                          "sync_error_mm_hi": 2 * hi,
+                                                          "sync_error_px1080_mean": 1.5 * e})
     runs = load_runs([tmp_path]).runs
     assert runs["sync_windows"].tolist() == [15, 15, 15] and runs["sync_horizon"].tolist() == [8, 8, 8]
     t = pareto_table(runs).set_index("mode")
     assert set(t["error"]) == {"sync_error_px"}
     assert t.loc["adaptive", "error_px"] == 2.0 and t.loc["adaptive", "error_lo_px"] == 1.8
+    units = ["error_mm", "error_lo_mm", "error_hi_mm", "error_px1080"]
+    assert t.loc["adaptive", units].tolist() == pytest.approx([4.0, 3.6, 4.4, 3.0])
     # viewdep is faster than adaptive but its error is not told apart from nonadaptive's, which is faster still
     assert t["on_front"].to_dict() == {"nonadaptive": True, "viewdep": False, "adaptive": True}
     assert t.loc["viewdep", "speedup"] == pytest.approx(2.0 / 1.5)

@@ -254,12 +254,27 @@ def test_identical_states_give_zero_and_a_rigid_shift_of_k_pixels_gives_k(run_n)
         assert e["sync_error_p90_px"] == pytest.approx(k, abs=SHIFT_TOL_PX)
 
 
+@pytest.mark.parametrize("run_n", [4, 3])
+def test_a_rigid_shift_of_k_mm_at_a_constant_depth_gives_k_mm(run_n):
+    """The depth-scaled pixel: the sheet faces the camera at 3 m, so a sideways shift of k mm is
+    k mm at every sample, whatever the pixels it spans; the 1080p pixels are the camera's times
+    the ratio of the diagonals."""
+    ref = _facing_sheet(4)
+    img = render_frame(CAM, ref["node_x"], ref["face_nodes"])
+    for k_mm in (1.0, 12.5):
+        e = correspondence_error(CAM, img, ref, _facing_sheet(run_n, k_mm * 1e-3 * CAM.focal_px / 3.0))
+        assert e["sync_error_mm"] == pytest.approx(k_mm, rel=SHIFT_TOL_PX)
+        assert e["sync_error_p90_mm"] == pytest.approx(k_mm, rel=SHIFT_TOL_PX)
+        scale = np.hypot(1920, 1080) / np.hypot(CAM.width, CAM.height)
+        assert e["sync_error_px1080"] == pytest.approx(e["sync_error_px"] * scale, rel=ROUNDOFF)
+
+
 def test_no_cloth_in_view_gives_nan():
     ref = _facing_sheet(3)
     away = Camera(position=(0.5, 3.0, 0.5), look_at=(0.5, 6.0, 0.5), width=40, height=30)
     img = render_frame(away, ref["node_x"], ref["face_nodes"])
     e = correspondence_error(away, img, ref, ref)
-    assert np.isnan(e["sync_error_px"]) and e["sync_samples"] == 0
+    assert np.isnan(e["sync_error_px"]) and np.isnan(e["sync_error_mm"]) and e["sync_samples"] == 0
 
 
 # ---- experiments.sync on tiny real runs ----------------------------------------------------------
@@ -303,7 +318,8 @@ def test_sync_cli_measures_each_run_and_the_reference_against_itself_is_zero(syn
         assert np.all(np.isfinite(table["sync_error_px"])) and not table["diverged"].any()
         s = json.loads((run / "sync.json").read_text())
         assert s["windows"] == 2 and s["horizon"] == 2 and "correspondence-v1" in s["definition"]
-        assert s["sync_error_px_lo"] <= s["sync_error_px_mean"] <= s["sync_error_px_hi"]
+        for measure in ("sync_error_px", "sync_error_mm", "sync_error_px1080"):  # each with its interval
+            assert s[f"{measure}_lo"] <= s[f"{measure}_mean"] <= s[f"{measure}_hi"], measure
     self_error = pd.read_parquet(runs[0] / "sync.parquet")["sync_error_px"]
     assert self_error.max() < SELF_RESTART_PX
     fixed = pd.read_parquet(runs[1] / "sync.parquet")

@@ -19,9 +19,16 @@ the camera counts as the image diagonal).
 
 * ``sync_error_px``: the mean error over the samples (0 when the reference shows no cloth: NaN);
 * ``sync_error_p90_px``: their 90th percentile;
+* ``sync_error_mm``: the mean error in millimetres on the cloth: each sample's pixels times its
+  size at the reference point's depth (depth / focal length), so that a close-up and a wide shot
+  weigh the same displacement alike (a pixel is 1 mm of the dancer in the close-up, 4 mm in the
+  wide shot); ``sync_error_p90_mm`` its 90th percentile;
+* ``sync_error_px1080``: the mean error in pixels of a 1920x1080 image of the same framing (the
+  camera's pixels times the ratio of the image diagonals: 1.5 for a 1280x720 camera);
 * ``sync_samples``: how many samples (pixels of the rendered image).
 
-A rigid sideways shift of the cloth by k pixels gives k; identical states give 0. What is not
+A rigid sideways shift of the cloth by k pixels gives k, by k mm at a constant depth gives k mm;
+identical states give 0. What is not
 measured: motion along the viewing ray (it moves nothing on screen), cloth the run shows where
 the reference shows none (the samples are the reference's visible points), and shading.
 """
@@ -34,6 +41,7 @@ from cloth.core.transfer import face_components, locate, match_components
 from cloth.eval.screenspace import CLOTH, ScreenImage
 
 DEFINITION_VERSION = "correspondence-v1"
+ERROR_KEYS = ("sync_error_px", "sync_error_p90_px", "sync_error_mm", "sync_error_p90_mm", "sync_error_px1080")
 
 
 def pixel_points(image: ScreenImage, camera, node_x: np.ndarray, face_nodes: np.ndarray):
@@ -70,12 +78,12 @@ def material_points(face: np.ndarray, w: np.ndarray, vert_u: np.ndarray, face_ve
 
 
 def correspondence_error(camera, ref_image: ScreenImage, ref: dict, run: dict) -> dict:
-    """sync_error_px, sync_error_p90_px, sync_samples (module docstring) of `run` against `ref`:
+    """ERROR_KEYS and sync_samples (module docstring) of `run` against `ref`:
     each a dict with node_x, vert_u, vert_node, face_verts (and ``face_nodes`` for `ref`, the
     triangles `ref_image` was rendered from)."""
     face, w = pixel_points(ref_image, camera, ref["node_x"], ref["face_nodes"])
     if face.size == 0:
-        return {"sync_error_px": float("nan"), "sync_error_p90_px": float("nan"), "sync_samples": 0}
+        return {**dict.fromkeys(ERROR_KEYS, float("nan")), "sync_samples": 0}
     ref_comp, ref_bounds = face_components(ref["vert_u"], ref["face_verts"])
     run_comp, run_bounds = face_components(run["vert_u"], run["face_verts"])
     to_run = match_components(ref_bounds, run_bounds)
@@ -84,9 +92,16 @@ def correspondence_error(camera, ref_image: ScreenImage, ref: dict, run: dict) -
     run_face, run_w, _ = locate(run["vert_u"], run["face_verts"], run_comp, u, to_run[ref_comp[face]])
     run_nodes = np.asarray(run["vert_node"])[np.asarray(run["face_verts"])[run_face]]
     x_run = np.einsum("pk,pkd->pd", run_w, run["node_x"][run_nodes])
-    p_ref, _ = camera.project(x_ref)
+    p_ref, depth = camera.project(x_ref)  # seen by the camera: depth > 0
     p_run, _ = camera.project(x_run)
     err = np.linalg.norm(p_run - p_ref, axis=1)
     err[~np.isfinite(err)] = float(np.hypot(camera.width, camera.height))
+    err_mm = err * depth / camera.focal_px * 1e3
     return {"sync_error_px": float(err.mean()), "sync_error_p90_px": float(np.percentile(err, 90)),
-            "sync_samples": int(face.size)}
+            "sync_error_mm": float(err_mm.mean()), "sync_error_p90_mm": float(np.percentile(err_mm, 90)),
+            "sync_error_px1080": float(err.mean()) * px1080_scale(camera), "sync_samples": int(face.size)}
+
+
+def px1080_scale(camera) -> float:
+    """Pixels of a 1920x1080 image per pixel of `camera`'s own (the ratio of the image diagonals)."""
+    return float(np.hypot(1920.0, 1080.0) / np.hypot(camera.width, camera.height))

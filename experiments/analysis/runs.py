@@ -48,8 +48,8 @@ ACCURACY_KEYS = ("error_px_mean", "error_px_max", "silhouette_px_mean", "surface
                  "visible_distance_mean", "visible_area_px_distance_mean", "silhouette_length_px_distance_mean",
                  "wrinkle_energy_px2_distance_mean", "hem_radius_m_distance_mean", "hem_height_m_distance_mean")
 # sync.json (experiments.sync, the re-synchronised error) -> runs table column
-SYNC_KEYS = {"sync_error_px_mean": "sync_error_px_mean", "sync_error_px_lo": "sync_error_px_lo",
-             "sync_error_px_hi": "sync_error_px_hi", "sync_error_px_cut_mean": "sync_error_px_cut_mean",
+SYNC_KEYS = {**{f"{m}_{s}": f"{m}_{s}" for m in ("sync_error_px", "sync_error_mm", "sync_error_px1080")
+                for s in ("mean", "lo", "hi", "cut_mean")},
              "windows": "sync_windows", "horizon": "sync_horizon"}
 # Per-frame measures a scene declares (cloth.core.scene.Scene.probes) or the view gives, taken at
 # equilibrium: the mean over the last EQUILIBRIUM_FRAMES frames -> runs-table column <name>_final.

@@ -33,15 +33,16 @@ per-frame states with restart data (written by this code's runner with output.st
 at every sync frame and every window's end. Writes into each RUN_DIR:
 
 * ``sync.parquet``: one row per window: sync_frame, frame (its end), before_cut (a window
-  ending just after a cut's lead), sync_error_px, sync_error_p90_px, sync_samples,
-  sync_error_h0_px (at the window's start, right after the restart), faces_mean
+  ending just after a cut's lead), sync_error_px, sync_error_p90_px, sync_error_mm,
+  sync_error_p90_mm, sync_error_px1080 (cloth.eval.correspondence), sync_samples,
+  sync_error_h0_px and sync_error_h0_mm (at the window's start, right after the restart), faces_mean
   (the run's faces over the window's frames), sim_s (its simulation time per frame) and
   diverged (the window stopped: its error is NaN);
-* ``sync.json``: ``sync_error_px_mean`` with its 90 % BCa bootstrap interval over the windows (scipy.stats.bootstrap)
-  (``sync_error_px_lo`` / ``_hi``, BOOTSTRAP resamples, seeded), ``sync_error_px_cut_mean``
-  (windows before a cut), ``sim_s_mean``, ``faces_mean``, ``windows``, ``every``, ``horizon``,
-  ``before_cut``, ``reference``, ``resolution_scale``, ``restart``, ``sync_error_h0_px_mean`` and
-  ``definition``.
+* ``sync.json``: for each of MEASURES (px, mm, px1080), ``<measure>_mean`` with its 90 % BCa
+  bootstrap interval over the windows (scipy.stats.bootstrap) (``<measure>_lo`` / ``_hi``,
+  BOOTSTRAP resamples, seeded) and ``<measure>_cut_mean`` (windows before a cut); ``sim_s_mean``,
+  ``faces_mean``, ``windows``, ``every``, ``horizon``, ``before_cut``, ``reference``,
+  ``resolution_scale``, ``restart``, ``sync_error_h0_px_mean`` and ``definition``.
 
 Refused before any work, with one message (exit code 2): a run of another scene, camera or
 frame time than the reference, a crowd, a reference without restart states where they are needed.
@@ -60,7 +61,7 @@ import pandas as pd
 from omegaconf import OmegaConf
 
 from cloth.eval import correspondence
-from cloth.eval.correspondence import correspondence_error
+from cloth.eval.correspondence import ERROR_KEYS, correspondence_error
 from cloth.eval.screenspace import render_state
 from cloth.io.manifest import write_json_atomic, write_parquet_atomic
 from cloth.io.states import StateError, load_state, require_restart
@@ -72,8 +73,10 @@ from experiments.build import ConfigError, build_simulation, camera_path, crowd_
 EVERY, HORIZON, BEFORE_CUT = 10, 8, 5  # frames: the issue's defaults
 RESTARTS = ("reference_mesh", "own_mesh")  # on which mesh a remeshing mode restarts (module docstring)
 RESOLUTION_SCALE = 0.5  # rendered image / camera image: samples every 2 camera pixels (distances stay in camera px)
-COLUMNS = ("sync_frame", "frame", "before_cut", "sync_error_px", "sync_error_p90_px", "sync_samples",
-           "sync_error_h0_px", "faces_mean", "sim_s", "diverged")
+COLUMNS = ("sync_frame", "frame", "before_cut", *ERROR_KEYS, "sync_samples",
+           "sync_error_h0_px", "sync_error_h0_mm", "faces_mean", "sim_s", "diverged")
+# the summaries' measures: the camera's pixels, millimetres on the cloth, pixels of a 1080p image
+MEASURES = ("sync_error_px", "sync_error_mm", "sync_error_px1080")
 
 
 def definition() -> str:
@@ -162,7 +165,7 @@ def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, b
         start = load_state(states[s][0])
         own_mesh = load_state(own[s][0]) if sim.remesher is not None and s in own else None
         sim.restart_from(start, own_mesh=own_mesh)
-        h0 = _error(sim, path, start, resolution_scale)["sync_error_px"]
+        h0 = _error(sim, path, start, resolution_scale)
         faces, sim_s, diverged = [], 0.0, False
         try:
             for _ in range(horizon):
@@ -172,14 +175,14 @@ def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, b
         except SimulationDiverged:
             diverged = True
         row = {"sync_frame": s, "frame": s + horizon, "before_cut": cut, "faces_mean": float(np.mean(faces or [0])),
-               "sim_s": sim_s / max(len(faces), 1), "diverged": diverged, "sync_error_h0_px": h0,
-               "sync_error_px": math.nan, "sync_error_p90_px": math.nan, "sync_samples": 0}
+               "sim_s": sim_s / max(len(faces), 1), "diverged": diverged, "sync_error_h0_px": h0["sync_error_px"],
+               "sync_error_h0_mm": h0["sync_error_mm"], **dict.fromkeys(ERROR_KEYS, math.nan), "sync_samples": 0}
         if not diverged:
             row.update(_error(sim, path, load_state(states[s + horizon][0]), resolution_scale))
         rows.append(row)
         if log:
             log(f"  {run_dir.name}: window {s}..{s + horizon}{' (before a cut)' if cut else ''}: "
-                f"{row['sync_error_px']:.2f} px, {row['faces_mean']:.0f} faces, "
+                f"{row['sync_error_px']:.2f} px ({row['sync_error_mm']:.2f} mm), {row['faces_mean']:.0f} faces, "
                 f"{time.perf_counter() - t0:.1f} s")
     return pd.DataFrame(rows, columns=list(COLUMNS))
 
@@ -195,28 +198,34 @@ def paired_difference_interval(a, b, resamples: int = BOOTSTRAP, seed: int = 0) 
     return bootstrap_interval(d, resamples, seed)
 
 
-def read_windows(run_dir) -> pd.Series | None:
-    """sync_error_px of a run folder's sync.parquet indexed by sync_frame (None without one)."""
+def read_windows(run_dir, measure: str = "sync_error_px") -> pd.Series | None:
+    """`measure` (a column of COLUMNS) of a run folder's sync.parquet indexed by sync_frame (None
+    without one, or without that column: an evaluation older than it)."""
     f = Path(run_dir) / "sync.parquet"
     if not f.is_file():
         return None
     try:
-        t = pd.read_parquet(f, columns=["sync_frame", "sync_error_px"])
+        t = pd.read_parquet(f, columns=["sync_frame", measure])
     except (OSError, ValueError, KeyError):
         return None
-    return t.set_index("sync_frame")["sync_error_px"].astype(float)
+    return t.set_index("sync_frame")[measure].astype(float)
 
 
 def summarize(table: pd.DataFrame, ref_dir, every, horizon, before_cut, resolution_scale,
               restart: str = "reference_mesh") -> dict:
-    err = table["sync_error_px"].to_numpy(dtype=np.float64)
-    ok = np.isfinite(err)
-    lo, hi = bootstrap_interval(err)
-    cut = table["before_cut"].to_numpy(bool) & ok
-    h0 = table["sync_error_h0_px"].to_numpy(float) if "sync_error_h0_px" in table.columns else np.zeros(0)
     nan_or = lambda a: float(np.mean(a)) if a.size else None  # noqa: E731
-    return {"sync_error_px_mean": nan_or(err[ok]), "sync_error_px_lo": None if math.isnan(lo) else lo,
-            "sync_error_px_hi": None if math.isnan(hi) else hi, "sync_error_px_cut_mean": nan_or(err[cut]),
+    out = {}
+    for measure in MEASURES:
+        if measure not in table.columns:
+            continue
+        err = table[measure].to_numpy(dtype=np.float64)
+        ok = np.isfinite(err)
+        lo, hi = bootstrap_interval(err)
+        cut = table["before_cut"].to_numpy(bool) & ok
+        out.update({f"{measure}_mean": nan_or(err[ok]), f"{measure}_lo": None if math.isnan(lo) else lo,
+                    f"{measure}_hi": None if math.isnan(hi) else hi, f"{measure}_cut_mean": nan_or(err[cut])})
+    h0 = table["sync_error_h0_px"].to_numpy(float) if "sync_error_h0_px" in table.columns else np.zeros(0)
+    return {**out,
             "sim_s_mean": nan_or(table["sim_s"].to_numpy(float)),
             "faces_mean": nan_or(table["faces_mean"].to_numpy(float)),
             "windows": int(len(table)), "windows_diverged": int(table["diverged"].sum()),
