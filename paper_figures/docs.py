@@ -41,7 +41,7 @@ PAGES = {
                [("table1", ["fig8_*"])]),
     "pareto": ("What accuracy costs in time", "Error against a fine reference beside simulation time per frame "
                "for every run of the accuracy study, and which runs are on the Pareto front.",
-               [("pareto", ["pareto"])]),
+               [("pareto", ["pareto"]), ("equivalence", [])]),
     "ablations": ("Ablations", "Buckling compensation on the drape test and on the standing dancer, and the "
                   "anticipation of camera cuts (the paper's Figs. 6 and 3).",
                   [("ablation_drape", ["ablation_drape"]), ("ablation_buckling_dancer", ["ablation_buckling_dancer"]),

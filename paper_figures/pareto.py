@@ -114,6 +114,61 @@ def _other_units(r, measure: str) -> dict:
             "error_hi_mm": get("sync_error_mm_hi"), "error_px1080": get("sync_error_px1080_mean")}
 
 
+# The equivalence margin for "equal quality": two errors within 5 mm on the cloth count as the same
+# quality. 5 mm is a tenth of the small scale's finest edge (the dancer's size_min, 5 cm), so a
+# difference below it is far inside one element of any mesh the study judges; it is also about
+# 1.7 pixels of a 1080p image in the study's wide shot (2.9 mm per 1080p pixel there).
+EQUIVALENCE_MARGIN_MM = 5.0
+
+
+def equivalence_table(g: pd.DataFrame, margin_mm: float = EQUIVALENCE_MARGIN_MM) -> pd.DataFrame:
+    """Each fixed mesh of a scene's runs `g` (a runs table of one scene and scale with paths) against
+    its default adaptive run, by two one-sided tests at 5 % each: the 90 % BCa interval (lo_mm, hi_mm)
+    of the paired difference fixed - adaptive of sync_error_mm over the windows both have; within
+    the margin (equivalent) when -margin < lo and hi < margin. Columns run, variant, faces_mean,
+    resolution_factor, diff_mm, lo_mm, hi_mm, windows, equivalent; sorted by faces, coarsest first.
+    Empty without an adaptive run or millimetre windows."""
+    ad = g[(g["mode"] == "adaptive") & g["variant"].fillna("").isin(["", "adaptive"])]
+    fixed = g[g["mode"] == "nonadaptive"].sort_values("faces_mean")
+    wa = read_windows(ad.iloc[-1]["path"], "sync_error_mm") if len(ad) and "path" in g.columns else None
+    rows = []
+    for _, f in fixed.iterrows() if wa is not None else ():
+        wf = read_windows(f["path"], "sync_error_mm")
+        if wf is None:
+            continue
+        a, b = wf.align(wa, join="inner")
+        d = (a - b).to_numpy(float)
+        d = d[np.isfinite(d)]
+        lo, hi = paired_difference_interval(wf, wa)
+        rows.append({"run": f["run"], "variant": f["variant"] or "nonadaptive", "faces_mean": float(f["faces_mean"]),
+                     "resolution_factor": float(f.get("resolution_factor", np.nan)),
+                     "diff_mm": float(d.mean()) if d.size else np.nan, "lo_mm": lo, "hi_mm": hi,
+                     "windows": int(d.size), "equivalent": bool(-margin_mm < lo and hi < margin_mm)})
+    return pd.DataFrame(rows, columns=["run", "variant", "faces_mean", "resolution_factor", "diff_mm", "lo_mm",
+                                       "hi_mm", "windows", "equivalent"])
+
+
+def equivalent_resolution(table: pd.DataFrame, margin_mm: float = EQUIVALENCE_MARGIN_MM) -> dict | None:
+    """The fixed mesh of adaptive's quality from an :func:`equivalence_table`: the coarsest equivalent
+    run, and where the next coarser one is worse by more than the margin (hi_mm > margin), the
+    resolution factor at which hi_mm reaches the margin, linear in log(resolution factor) between
+    the two (the sweep brackets it). None when no fixed mesh is equivalent."""
+    eq = table[table["equivalent"]]
+    if eq.empty:
+        return None
+    best = eq.iloc[0]
+    out = {"run": best["run"], "variant": best["variant"], "resolution_factor": best["resolution_factor"],
+           "faces_mean": best["faces_mean"], "interpolated_factor": best["resolution_factor"], "bracketed": False}
+    coarser = table[table["faces_mean"] < best["faces_mean"]]
+    if len(coarser):
+        c = coarser.iloc[-1]
+        if c["hi_mm"] > margin_mm > best["hi_mm"] and c["resolution_factor"] > 0 and best["resolution_factor"] > 0:
+            w = (c["hi_mm"] - margin_mm) / (c["hi_mm"] - best["hi_mm"])
+            log_f = (1 - w) * np.log(c["resolution_factor"]) + w * np.log(best["resolution_factor"])
+            out.update(interpolated_factor=float(np.exp(log_f)), bracketed=True)
+    return out
+
+
 def pareto_table(runs: pd.DataFrame) -> pd.DataFrame:
     """One row per run with accuracy (never a reference): scene, scale, mode, variant, run, time_mean_s,
     error (the measure: sync_error_px or error_px), error_px (its mean), error_lo_px / error_hi_px
@@ -189,10 +244,37 @@ def make(runset: RunSet, out, paper_timings=None, log=print) -> list[Path]:
         log(f"pareto: {r.scene} ({r.scale}): the fixed mesh of adaptive's quality is {r.variant} "
             f"({r.faces_mean:.0f} faces, {r.error_px:.3g} px, {r.time_mean_s:.3g} s/frame; adaptive "
             f"{t_ad:.3g} s/frame)")
-    return save_figure(fig, out, "pareto") + write_table(
+    written = save_figure(fig, out, "pareto") + write_table(
         table, out, "pareto", "Accuracy against time: every run with accuracy; on_front = on the Pareto front; "
         "equal_quality = the coarsest fixed mesh whose error is not told apart as worse than adaptive's "
         "(the paper's baseline)")
+    eq = _equivalence(runset.runs, log)
+    if len(eq):
+        written += write_table(eq, out, "equivalence", "Equal quality by equivalence: each fixed mesh against "
+                               f"adaptive, the 90 % paired interval of their difference in mm on the cloth; "
+                               f"equivalent = inside +-{EQUIVALENCE_MARGIN_MM:g} mm (two one-sided tests at 5 %)")
+    return written
+
+
+def _equivalence(runs: pd.DataFrame, log=print) -> pd.DataFrame:
+    """equivalence_table of every scene and scale whose runs have millimetre windows, with a log
+    line naming the fixed mesh of adaptive's quality (interpolated where the sweep brackets it)."""
+    pts = runs[~runs["reference"].astype(bool)] if "reference" in runs else runs
+    parts = []
+    for (scene, scale), g in pts.groupby(["scene", "scale"], sort=True):
+        t = equivalence_table(g)
+        if t.empty:
+            continue
+        parts.append(t.assign(scene=scene, scale=scale))
+        best = equivalent_resolution(t)
+        log(f"pareto: {scene} ({scale}): " + (
+            "no fixed mesh is within the equivalence margin of adaptive" if best is None else
+            f"equal quality by equivalence: {best['variant']} (x{best['interpolated_factor']:.3g} "
+            f"{'interpolated' if best['bracketed'] else 'as run'})"))
+    if not parts:
+        return pd.DataFrame()
+    t = pd.concat(parts, ignore_index=True)
+    return t[["scene", "scale", *[c for c in t.columns if c not in ("scene", "scale")]]]
 
 
 def main(argv=None) -> int:

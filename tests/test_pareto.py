@@ -105,3 +105,70 @@ def test_pareto_table_uses_the_resynchronised_error_and_its_interval(tmp_path):
     # viewdep is faster than adaptive but its error is not told apart from nonadaptive's, which is faster still
     assert t["on_front"].to_dict() == {"nonadaptive": True, "viewdep": False, "adaptive": True}
     assert t.loc["viewdep", "speedup"] == pytest.approx(2.0 / 1.5)
+
+
+def _mm_runs(tmp_path, cases, frames):
+    """Run folders of solo_dancer with millimetre windows (sync.parquet) and resolution factors."""
+    import yaml
+    for i, (mode, variant, factor, faces, e) in enumerate(cases):
+        folder = write_run(tmp_path / f"{i}", "solo_dancer", mode, [faces] * 4, [faces // 2] * 4, [1.0] * 4,
+                           study="accuracy", variant=variant, accuracy={"error_px_mean": 60.0},
+                           sync={"sync_error_px_mean": float(e.mean())})
+        if factor is not None:
+            cfg = yaml.safe_load((folder / "config.yaml").read_text())
+            (folder / "config.yaml").write_text(yaml.safe_dump({**cfg, "resolution_factor": factor}))
+        pd.DataFrame({"sync_frame": frames, "sync_error_px": e, "sync_error_mm": e}).to_parquet(
+            folder / "sync.parquet", index=False)
+    return load_runs([tmp_path]).runs
+
+
+def test_equal_quality_by_equivalence_is_the_coarsest_fixed_mesh_within_the_margin(tmp_path):
+    """Two one-sided tests on constructed windows: adaptive's errors `base`; x0.5 is 12 mm worse in
+    every window (its interval is [12, 12]: outside), x1 is 3 mm worse (inside a 5 mm margin), x2
+    is 1 mm better (inside). The coarsest equivalent is x1; between x0.5 (hi 12) and x1 (hi 3) the
+    upper bound reaches the 5 mm margin 7/9 of the way, in log(factor): 0.5 * 2 ** (7 / 9)."""
+    from paper_figures.pareto import equivalence_table, equivalent_resolution
+
+    frames = list(range(0, 60, 5))
+    base = np.linspace(10.0, 40.0, len(frames))
+    runs = _mm_runs(tmp_path, (("adaptive", "adaptive", None, 2000, base),
+                               ("nonadaptive", "fixed x0.5", 0.5, 600, base + 12.0),
+                               ("nonadaptive", "fixed x1", 1.0, 2500, base + 3.0),
+                               ("nonadaptive", "fixed x2", 2.0, 10000, base - 1.0)), frames)
+    t = equivalence_table(runs, margin_mm=5.0)
+    assert t["variant"].tolist() == ["fixed x0.5", "fixed x1", "fixed x2"]
+    assert t["equivalent"].tolist() == [False, True, True]
+    assert t["lo_mm"].tolist() == pytest.approx([12.0, 3.0, -1.0]) and t["windows"].tolist() == [12] * 3
+    best = equivalent_resolution(t, margin_mm=5.0)
+    assert best["variant"] == "fixed x1" and best["bracketed"]
+    assert best["interpolated_factor"] == pytest.approx(0.5 * 2 ** (7 / 9))
+    # a tighter margin than x1's difference: only x2 is equivalent, and x1 (hi 3 > 2) brackets it
+    best = equivalent_resolution(equivalence_table(runs, margin_mm=2.0), margin_mm=2.0)
+    assert best["variant"] == "fixed x2" and best["interpolated_factor"] == pytest.approx(2 ** (1 / 4))
+    # a margin nothing meets
+    assert equivalent_resolution(equivalence_table(runs, margin_mm=0.5), margin_mm=0.5) is None
+
+
+def test_equivalence_needs_millimetre_windows(tmp_path):
+    from paper_figures.pareto import equivalence_table
+
+    frames = [0, 10, 20]
+    runs = _mm_runs(tmp_path, (("adaptive", "adaptive", None, 2000, np.array([1.0, 2.0, 3.0])),
+                               ("nonadaptive", "fixed x1", 1.0, 2500, np.array([1.0, 2.0, 3.0]))), frames)
+    for f in tmp_path.glob("*/sync.parquet"):  # an evaluation older than the millimetre error
+        pd.read_parquet(f).drop(columns="sync_error_mm").to_parquet(f, index=False)
+    assert equivalence_table(runs).empty
+
+
+def test_the_pareto_figure_writes_the_equivalence_table(tmp_path):
+    from paper_figures.pareto import make
+
+    frames = list(range(0, 40, 5))
+    base = np.linspace(10.0, 40.0, len(frames))
+    _mm_runs(tmp_path / "runs", (("adaptive", "adaptive", None, 2000, base),
+                                        ("nonadaptive", "fixed x1", 1.0, 2500, base + 1.0)), frames)
+    logs = []
+    make(load_runs([tmp_path / "runs"]), tmp_path / "fig", log=logs.append)
+    eq = pd.read_csv(tmp_path / "fig" / "equivalence.csv")
+    assert eq[["scene", "variant", "equivalent"]].values.tolist() == [["solo_dancer", "fixed x1", True]]
+    assert any("equal quality by equivalence: fixed x1 (x1 as run)" in line for line in logs)
