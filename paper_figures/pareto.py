@@ -259,6 +259,8 @@ def make(runset: RunSet, out, paper_timings=None, log=print) -> list[Path]:
 def _equivalence(runs: pd.DataFrame, log=print) -> pd.DataFrame:
     """equivalence_table of every scene and scale whose runs have millimetre windows, with a log
     line naming the fixed mesh of adaptive's quality (interpolated where the sweep brackets it)."""
+    if runs.empty or not {"scene", "scale"} <= set(runs.columns):
+        return pd.DataFrame()
     pts = runs[~runs["reference"].astype(bool)] if "reference" in runs else runs
     parts = []
     for (scene, scale), g in pts.groupby(["scene", "scale"], sort=True):
