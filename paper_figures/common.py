@@ -185,24 +185,37 @@ def _key(v):
     return "none" if v is None or (isinstance(v, float) and math.isnan(v)) else v
 
 
-def one_factor(runs: pd.DataFrame, factor: str, others) -> pd.DataFrame:
+def one_factor(runs: pd.DataFrame, factor: str, others, refused: list | None = None) -> pd.DataFrame:
     """The runs among `runs` in which only `factor` varies: grouped by the `others` columns, the
     group with the most distinct values of `factor` (at least two), the latest run per value;
-    empty when no group varies `factor`."""
+    empty when no group varies `factor`. With a list `refused`, every other run of `runs` is
+    appended to it as (run, reason): the columns in which it differs from the chosen points, or
+    the later run of its value that superseded it."""
     if runs.empty:
         return runs
     others = [c for c in others if c in runs.columns]  # a runs table of older code may lack some
     keys = runs[list(others)].apply(lambda r: tuple(_key(v) for v in r), axis=1)
-    best, best_n = None, 1
+    best, best_n, best_key = None, 1, None
     for k in keys.drop_duplicates():
         group = runs[keys == k]
         n = group[factor].map(_key).nunique()
         if n > best_n:
-            best, best_n = group, n
+            best, best_n, best_key = group, n, k
     if best is None:
+        if refused is not None:
+            refused.extend((r.run, f"no other run varies only {factor}") for r in runs.itertuples())
         return runs.iloc[0:0]
     best = best.assign(_f=best[factor].map(_key))
     chosen, _ = latest(best, ("_f",))
+    if refused is not None:
+        for i, r in runs.iterrows():
+            if i in chosen.index:
+                continue
+            if keys[i] == best_key:
+                refused.append((r["run"], f"superseded by a later run of the same {factor}"))
+                continue
+            differ = [f"{c} {r[c]!r} (the points: {v!r})" for c, v, own in zip(others, best_key, keys[i]) if own != v]
+            refused.append((r["run"], f"differs from the {factor} sweep's points in " + ", ".join(differ)))
     return chosen.drop(columns="_f")
 
 

@@ -22,7 +22,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from experiments.analysis.aggregate import baseline_for
+from experiments.analysis.aggregate import Problem, baseline_for
 
 from .common import RunSet, Skip, one_factor, save_figure, script_main, study_or_all, write_table
 
@@ -39,9 +39,11 @@ OTHERS = ("nu_out", "margin", "T", "anticipation", "l_min_px", "buckling_k", "bu
           "contact_size", "study")
 
 
-def sweep_points(runs: pd.DataFrame, param: str) -> pd.DataFrame:
+def sweep_points(runs: pd.DataFrame, param: str, refused: list | None = None) -> pd.DataFrame:
     """The points of one parameter's sweep: scene, scale, value, run, variant, faces_mean,
-    time_mean_s, speedup, error_px_mean (one row per value per scene and scale)."""
+    time_mean_s, speedup, error_px_mean (one row per value per scene and scale). With a list
+    `refused`, the view-dependent runs of the points' study that are not points go into it as
+    (run, reason) (:func:`paper_figures.common.one_factor`)."""
     col = PARAMETERS[param][0]
     cand = study_or_all(runs, f"sweep_{param}")
     if cand.empty:
@@ -51,9 +53,13 @@ def sweep_points(runs: pd.DataFrame, param: str) -> pd.DataFrame:
         vd = vd[vd["buckling_mode"] == "adaptive"]
     rows = []
     for (scene, scale), group in vd.groupby(["scene", "scale"], sort=True):
-        pts = one_factor(group, col, [c for c in OTHERS if c != col])
+        left: list = []
+        pts = one_factor(group, col, [c for c in OTHERS if c != col], left)
         if pts.empty:
             continue
+        if refused is not None:  # the runs of the points' own study left out (other studies' are not this sweep's)
+            own = set(group.loc[group["study"] == pts["study"].iloc[0], "run"])
+            refused.extend((run, why) for run, why in left if run in own)
         for r in pts.sort_values(col).itertuples():
             # the adaptive run of the point's own study and repeat (seed), never another study's
             base = baseline_for(cand[cand["study"] == r.study], scene, scale, seed=r.seed)
@@ -97,7 +103,10 @@ def make(runset: RunSet, out, paper_timings=None, log=print) -> list[Path]:
     """sweep_<param>.png/.pdf for every parameter swept in the runs, and sweeps.csv/.md."""
     files, tables, absent = [], [], []
     for param in PARAMETERS:
-        pts = sweep_points(runset.runs, param)
+        refused: list = []
+        pts = sweep_points(runset.runs, param, refused)
+        for run, reason in refused:  # a run of the sweep that is not one of its points, named
+            runset.problems.append(Problem(Path(out) / "sweeps.md", f"sweep of {param}: {run}: {reason}"))
         if pts.empty:
             absent.append(param)
             continue

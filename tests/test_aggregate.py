@@ -447,3 +447,8 @@ def test_a_sweep_never_mixes_studies_or_runs_that_differ_in_more_than_its_parame
     assert pts["value"].tolist() == [0.01, 0.1] and set(pts["study"]) == {"accuracy"}
     assert np.allclose(pts["speedup"], [1.0 / 0.5, 1.0 / 0.4], rtol=0, atol=EXACT_TOL)  # the accuracy study's adaptive
     assert set(pts["error"]) == {"sync_error_px"} and pts["error_px"].tolist() == [7.0, 7.0]
+    # the accuracy study's occlusion-off run is not a point, and is named with the setting it differs in;
+    # the other study's run is not this sweep's at all, so it is not listed
+    refused: list = []
+    sweep_points(load_runs([root]).runs, "nu_out", refused)
+    assert [Path(run).name for run, _ in refused] == ["vd_occl_off"] and "occlusion" in refused[0][1], refused
