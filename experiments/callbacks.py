@@ -96,7 +96,7 @@ def measure_accuracy(sweep_dir: Path, log=print, sync: dict | None = None) -> in
                 except AccuracyError as exc:  # e.g. a run too short for a window: the others go on
                     log(f"sync: {run.name} not measured: {exc}")
                     continue
-                write_sync(run, table, ref, **opts)
+                write_sync(run, table, ref, **{k: v for k, v in opts.items() if k != "per_frame"})
     return measured
 
 
@@ -120,22 +120,23 @@ class StudyCallback(Callback):
 
     def __init__(self, accuracy: bool = True, figures: bool = True, sync=None) -> None:
         """`sync`: None, or the options of the re-synchronised error (every, horizon, before_cut,
-        resolution_scale, restart; experiments.sync defaults for those not given) and `reference` (default
+        resolution_scale, restart, per_frame; experiments.sync defaults for those not given) and `reference` (default
         true: also the reference restarted from its own states, which measures the restart at
         the cost of the reference's frames again)."""
         self.accuracy, self.figures = bool(accuracy), bool(figures)
         self.sync = None
         if sync is not None:
             opts = {"every": EVERY, "horizon": HORIZON, "before_cut": BEFORE_CUT, "resolution_scale": RESOLUTION_SCALE,
-                    "reference": True, "restart": "reference_mesh"}
+                    "reference": True, "restart": "reference_mesh", "per_frame": False}
             unknown = set(sync) - set(opts)
             if unknown:
                 raise ValueError(f"hydra.callbacks.study.sync: unknown option(s) {sorted(unknown)}; "
                                  f"known: {sorted(opts)}")
             opts.update({k: sync[k] for k in sync})
             check_options(opts["every"], opts["horizon"], opts["before_cut"], opts["resolution_scale"])
-            if not isinstance(opts["reference"], bool):
-                raise ValueError(f"hydra.callbacks.study.sync.reference: true or false, got {opts['reference']!r}")
+            for flag in ("reference", "per_frame"):
+                if not isinstance(opts[flag], bool):
+                    raise ValueError(f"hydra.callbacks.study.sync.{flag}: true or false, got {opts[flag]!r}")
             if opts["restart"] not in RESTARTS:
                 raise ValueError(f"hydra.callbacks.study.sync.restart: one of {', '.join(RESTARTS)}, "
                                  f"got {opts['restart']!r}")

@@ -257,6 +257,9 @@ def test_a_study_callback_with_unknown_sync_options_is_refused():
         StudyCallback(sync={"horizn": 4})
     with pytest.raises(ValueError, match="--horizon must be an integer >= 1"):
         StudyCallback(sync={"horizon": 0})
+    assert StudyCallback(sync={"per_frame": True}).sync["per_frame"] is True
+    with pytest.raises(ValueError, match="sync.per_frame: true or false"):
+        StudyCallback(sync={"per_frame": "yes"})
 
 
 def test_submitit_local_launcher(tmp_path):

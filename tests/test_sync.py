@@ -364,3 +364,27 @@ def test_sync_refuses_a_reference_without_restart_data_and_bad_options(sync_runs
     assert main([str(run), "--reference", str(sync_runs / "ref"), "--horizon", "9"]) == 2
     assert "no window of 9 frames fits in 4 frames" in capsys.readouterr().err
     assert not (run / "sync.parquet").exists()
+
+
+def test_sync_per_frame_records_every_frame_of_every_window_and_the_reference_is_zero_at_each(sync_runs, tmp_path):
+    from experiments.analysis.sync import FRAME_COLUMNS, main
+
+    ref = sync_runs / "ref"
+    runs = {name: tmp_path / name for name in ("ref", "adaptive")}
+    for name, d in runs.items():
+        shutil.copytree(sync_runs / name, d)
+    assert main([*map(str, runs.values()), "--reference", str(ref), "--every", "2", "--horizon", "2",
+                 "--resolution-scale", "0.25", "--restart", "own_mesh", "--per-frame"]) == 0
+    for d in runs.values():
+        frames = pd.read_parquet(d / "sync_frames.parquet")
+        windows = pd.read_parquet(d / "sync.parquet")
+        assert list(frames.columns) == list(FRAME_COLUMNS)
+        assert frames[["sync_frame", "h", "frame"]].values.tolist() == [[0, 1, 1], [0, 2, 2], [2, 1, 3], [2, 2, 4]]
+        # the last frame of a window is the window's own error, measured the same way
+        at_h = frames[frames["h"] == 2].set_index("sync_frame")["sync_error_px"]
+        assert np.allclose(at_h, windows.set_index("sync_frame")["sync_error_px"], rtol=0, atol=SELF_RESTART_PX)
+        by_h = json.loads((d / "sync.json").read_text())["sync_error_px_by_h"]
+        assert sorted(by_h) == ["1", "2"]
+    # the reference restarted from itself stays on itself at every frame of the window, not only at H
+    assert pd.read_parquet(runs["ref"] / "sync_frames.parquet")["sync_error_px"].max() < SELF_RESTART_PX
+    assert pd.read_parquet(runs["adaptive"] / "sync_frames.parquet")["sync_error_px"].max() > SELF_RESTART_PX

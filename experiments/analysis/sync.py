@@ -2,7 +2,7 @@
 
     python -m experiments.sync RUN_DIR [RUN_DIR ...] --reference REF_DIR [--every 10] [--horizon 8]
                                [--before-cut 5] [--resolution-scale 0.5]
-                               [--restart reference_mesh|own_mesh]
+                               [--restart reference_mesh|own_mesh] [--per-frame]
 
 A swirling skirt is chaotic: two runs that differ by round-off follow unrelated trajectories
 within about a second, so the error of a whole run against a reference soon measures "two
@@ -42,7 +42,12 @@ at every sync frame and every window's end. Writes into each RUN_DIR:
   bootstrap interval over the windows (scipy.stats.bootstrap) (``<measure>_lo`` / ``_hi``,
   BOOTSTRAP resamples, seeded) and ``<measure>_cut_mean`` (windows before a cut); ``sim_s_mean``,
   ``faces_mean``, ``windows``, ``every``, ``horizon``, ``before_cut``, ``reference``,
-  ``resolution_scale``, ``restart``, ``sync_error_h0_px_mean`` and ``definition``.
+  ``resolution_scale``, ``restart``, ``sync_error_h0_px_mean`` and ``definition``;
+* with ``--per-frame``, also ``sync_frames.parquet``: one row per frame of every window
+  (sync_frame, h = 1 ... H, frame, the error measures against the reference's state of that
+  frame, faces, sim_s), so that how the error grows within a window is seen, not only its value
+  at H; and in sync.json ``sync_error_px_by_h`` (the mean over windows at each h). The reference
+  then needs its states at every frame of every window.
 
 Refused before any work, with one message (exit code 2): a run of another scene, camera or
 frame time than the reference, a crowd, a reference without restart states where they are needed.
@@ -77,6 +82,7 @@ COLUMNS = ("sync_frame", "frame", "before_cut", *ERROR_KEYS, "sync_samples",
            "sync_error_h0_px", "sync_error_h0_mm", "faces_mean", "sim_s", "diverged")
 # the summaries' measures: the camera's pixels, millimetres on the cloth, pixels of a 1080p image
 MEASURES = ("sync_error_px", "sync_error_mm", "sync_error_px1080")
+FRAME_COLUMNS = ("sync_frame", "h", "frame", *MEASURES, "faces", "sim_s")  # sync_frames.parquet (--per-frame)
 
 
 def definition() -> str:
@@ -100,8 +106,10 @@ def _cut_frames(path, frame_time: float) -> list[int]:
     return [int(round(c / frame_time)) for c in getattr(path, "cuts", ())]
 
 
-def plan(run_dir: Path, ref_dir: Path, every: int, horizon: int, before_cut: int, restart: str = "reference_mesh"):
-    """(config, camera path, [(sync frame, before_cut)]) of a run; AccuracyError names what is wrong."""
+def plan(run_dir: Path, ref_dir: Path, every: int, horizon: int, before_cut: int, restart: str = "reference_mesh",
+         per_frame: bool = False):
+    """(config, camera path, [(sync frame, before_cut)]) of a run; AccuracyError names what is wrong.
+    `per_frame`: the reference's states of every frame of every window are needed too."""
     check_configs(run_dir, ref_dir)
     cfg = OmegaConf.load(run_dir / "config.yaml")
     if crowd_size(cfg) is not None:
@@ -115,12 +123,13 @@ def plan(run_dir: Path, ref_dir: Path, every: int, horizon: int, before_cut: int
     if not windows:
         raise AccuracyError(f"{run_dir}: no window of {horizon} frames fits in {frames} frames")
     states = state_files(ref_dir)
-    need = sorted({s for s, _ in windows} | {s + horizon for s, _ in windows})
+    need = sorted({s for s, _ in windows} | {s + horizon for s, _ in windows}
+                  | ({s + h for s, _ in windows for h in range(1, horizon)} if per_frame else set()))
     missing = [f for f in need if f not in states]
     if missing:
         raise AccuracyError(f"{ref_dir}: the reference has no state for frames {missing[:5]} "
                             f"({len(missing)} of the {len(need)} the windows need); run it with output.states_every=1")
-    for f in need:  # the starts to restart from, the ends to compare with (material coordinates)
+    for f in need:  # the starts to restart from, the frames to compare with (material coordinates)
         try:
             require_restart(load_state(states[f][0]), states[f][0])
         except StateError as exc:
@@ -149,16 +158,18 @@ def _error(sim, path, ref: dict, resolution_scale: float) -> dict:
 
 
 def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, before_cut: int = BEFORE_CUT,
-                 resolution_scale: float = RESOLUTION_SCALE, log=None, restart: str = "reference_mesh") -> pd.DataFrame:
+                 resolution_scale: float = RESOLUTION_SCALE, log=None, restart: str = "reference_mesh",
+                 per_frame: bool = False) -> pd.DataFrame:
     """The windows of one run against the reference (COLUMNS, one row per window); writes nothing.
-    `restart`: one of RESTARTS (module docstring)."""
+    `restart`: one of RESTARTS (module docstring). `per_frame`: also the error at every frame of
+    every window, as ``.attrs["per_frame"]`` (FRAME_COLUMNS, one row per window and frame)."""
     run_dir, ref_dir = Path(run_dir), Path(ref_dir)
     if restart not in RESTARTS:
         raise AccuracyError(f"--restart must be one of {', '.join(RESTARTS)}, got {restart!r}")
-    cfg, path, windows = plan(run_dir, ref_dir, every, horizon, before_cut, restart)
+    cfg, path, windows = plan(run_dir, ref_dir, every, horizon, before_cut, restart, per_frame)
     states = state_files(ref_dir)
     own = state_files(run_dir) if restart == "own_mesh" else {}
-    rows = []
+    rows, frame_rows = [], []
     for s, cut in windows:
         t0 = time.perf_counter()
         sim, _ = build_simulation(cfg)
@@ -168,10 +179,14 @@ def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, b
         h0 = _error(sim, path, start, resolution_scale)
         faces, sim_s, diverged = [], 0.0, False
         try:
-            for _ in range(horizon):
+            for h in range(1, horizon + 1):
                 rec = sim.advance_frame()
                 faces.append(rec["faces"])
                 sim_s += rec["sim_s"]
+                if per_frame:
+                    e = _error(sim, path, load_state(states[s + h][0]), resolution_scale)
+                    frame_rows.append({"sync_frame": s, "h": h, "frame": s + h, **{m: e[m] for m in MEASURES},
+                                       "faces": rec["faces"], "sim_s": rec["sim_s"]})
         except SimulationDiverged:
             diverged = True
         row = {"sync_frame": s, "frame": s + horizon, "before_cut": cut, "faces_mean": float(np.mean(faces or [0])),
@@ -184,7 +199,10 @@ def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, b
             log(f"  {run_dir.name}: window {s}..{s + horizon}{' (before a cut)' if cut else ''}: "
                 f"{row['sync_error_px']:.2f} px ({row['sync_error_mm']:.2f} mm), {row['faces_mean']:.0f} faces, "
                 f"{time.perf_counter() - t0:.1f} s")
-    return pd.DataFrame(rows, columns=list(COLUMNS))
+    table = pd.DataFrame(rows, columns=list(COLUMNS))
+    if per_frame:
+        table.attrs["per_frame"] = pd.DataFrame(frame_rows, columns=list(FRAME_COLUMNS))
+    return table
 
 
 def paired_difference_interval(a, b, resamples: int = BOOTSTRAP, seed: int = 0) -> tuple[float, float]:
@@ -233,13 +251,29 @@ def summarize(table: pd.DataFrame, ref_dir, every, horizon, before_cut, resoluti
             "reference": str(Path(ref_dir).resolve()), "resolution_scale": float(resolution_scale),
             "restart": restart,
             "sync_error_h0_px_mean": nan_or(h0[np.isfinite(h0)]),
+            **_by_h(table.attrs.get("per_frame")),
             "definition": definition()}
+
+
+def _by_h(per_frame: pd.DataFrame | None) -> dict:
+    """sync_error_px_by_h: the mean over windows of the error at each frame h = 1 ... H of a
+    window (h = 0: sync_error_h0_px); {} without per-frame errors."""
+    if per_frame is None or per_frame.empty:
+        return {}
+    by_h = per_frame.groupby("h")["sync_error_px"].mean()
+    return {"sync_error_px_by_h": {int(h): (None if math.isnan(v) else float(v)) for h, v in by_h.items()}}
 
 
 def write_sync(run_dir, table: pd.DataFrame, ref_dir, every=EVERY, horizon=HORIZON, before_cut=BEFORE_CUT,
                resolution_scale=RESOLUTION_SCALE, restart: str = "reference_mesh") -> dict:
-    """sync.parquet and sync.json into `run_dir` (atomically); returns the summary."""
+    """sync.parquet and sync.json into `run_dir` (atomically), and sync_frames.parquet when the
+    table carries per-frame errors (evaluate_run's `per_frame`); returns the summary."""
     summary = summarize(table, ref_dir, every, horizon, before_cut, resolution_scale, restart)
+    per_frame = table.attrs.get("per_frame")
+    if per_frame is not None:
+        write_parquet_atomic(Path(run_dir) / "sync_frames.parquet", per_frame)
+        table = table.copy()
+        table.attrs = {}  # the per-frame table has its own file
     write_parquet_atomic(Path(run_dir) / "sync.parquet", table)
     write_json_atomic(Path(run_dir) / "sync.json", summary)
     return summary
@@ -265,17 +299,19 @@ def main(argv=None) -> int:
                     help="rendered image / camera image (distances stay in camera pixels)")
     ap.add_argument("--restart", choices=RESTARTS, default="reference_mesh",
                     help="a remeshing mode restarts on the reference's mesh, or on its own run's mesh (symmetric)")
+    ap.add_argument("--per-frame", action="store_true",
+                    help="also the error at every frame of every window (sync_frames.parquet)")
     args = ap.parse_args(argv)
     try:
         check_options(args.every, args.horizon, args.before_cut, args.resolution_scale)
         for d in args.runs:  # every run checked before any work
-            plan(Path(d), Path(args.reference), args.every, args.horizon, args.before_cut, args.restart)
+            plan(Path(d), Path(args.reference), args.every, args.horizon, args.before_cut, args.restart, args.per_frame)
     except (AccuracyError, ConfigError) as exc:
         print(f"sync error: {exc}", file=sys.stderr)
         return 2
     for d in args.runs:
         table = evaluate_run(d, args.reference, args.every, args.horizon, args.before_cut, args.resolution_scale,
-                             log=print, restart=args.restart)
+                             log=print, restart=args.restart, per_frame=args.per_frame)
         s = write_sync(d, table, args.reference, args.every, args.horizon, args.before_cut, args.resolution_scale,
                        args.restart)
         fmt = lambda v: "n/a" if v is None else f"{v:.3g}"  # noqa: E731
