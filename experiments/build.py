@@ -64,6 +64,11 @@ REMESHING_MODES = ("adaptive", "viewdep")
 
 
 MEMBER_SEED_STRIDE = 1000  # scene seed of member K of a reference ensemble: seed + 1000 K
+# reference_check: the reference refined by REFERENCE_REFINEMENT in one discretisation parameter,
+# the fine one (twice the segments: half the edge, four times the faces) or the half time step (twice
+# the implicit steps per frame); the reference measured against each is its own error
+REFERENCE_CHECKS = {"fine": "resolution", "half_dt": "steps_per_frame"}
+REFERENCE_REFINEMENT = 2
 
 
 def build_material(cfg: DictConfig):
@@ -374,6 +379,16 @@ def build(cfg: DictConfig, character: int | None = None) -> Built:
         _require(isinstance(reference, dict), "reference",
                  f"scene {name!r} has no reference preset at scale {cfg.scale!r} (scene.scales.{cfg.scale}.reference)")
         params.update(reference)
+    check = cfg.get("reference_check", None)
+    if check is not None:  # the reference made finer in space or in time, to measure the reference's own error
+        _require(check in REFERENCE_CHECKS, "reference_check",
+                 f"one of {', '.join(REFERENCE_CHECKS)} or null, got {_plain(check)!r}")
+        _require(reference_run and cfg.get("reference_member", 0) == 0, "reference_check",
+                 "refines the reference (member 0): set reference=true (+point=reference_check/NAME sets both)")
+        key = REFERENCE_CHECKS[check]
+        _require(_is_number(params.get(key)), f"scene.params.{key}",
+                 f"reference_check={check} refines it: must be an integer, got {params.get(key)!r}")
+        params[key] = int(params[key]) * REFERENCE_REFINEMENT
     sizing_overrides = params.pop("sizing", None) or {}
     _require(isinstance(sizing_overrides, dict), f"scene.scales.{cfg.scale}.sizing",
              f"must be a mapping of mode.sizing keys, got {sizing_overrides!r}")

@@ -9,7 +9,11 @@ re-simulating) and
    out-of-view cloth), which writes accuracy.parquet and accuracy.json into each run folder; with
    the callback's ``sync`` options (conf/experiment/accuracy.yaml), also the re-synchronised
    error of each of them and of the reference itself (experiments.sync: every run restarted from
-   the reference's states), which writes sync.parquet and sync.json;
+   the reference's states), which writes sync.parquet and sync.json; and where the study has
+   reference checks (``reference_check: fine | half_dt``, conf/point/reference_check/), the
+   reference's own error: the reference restarted from each check's states, and from its own
+   states perturbed by 0.1 mm (the floor), into the reference's folder as sync_fine.*,
+   sync_half_dt.* and sync_floor.*;
 2. makes the study's tables and figures (paper_figures) into ``<sweep dir>/figures``.
 
 A failure in either is reported and does not undo the runs: the folders stay as written and
@@ -63,7 +67,7 @@ def measure_accuracy(sweep_dir: Path, log=print, sync: dict | None = None) -> in
     cfgs = {r: yaml.safe_load((r / "config.yaml").read_text()) for r in runs}
     ensembles: dict[tuple, list[Path]] = {}
     for r in runs:
-        if cfgs[r].get("reference"):
+        if cfgs[r].get("reference") and not cfgs[r].get("reference_check"):  # a check is not a member
             key = (cfgs[r]["scene"]["name"], cfgs[r].get("seed"))
             ensembles.setdefault(key, []).append(r)
     measured = 0
@@ -97,7 +101,41 @@ def measure_accuracy(sweep_dir: Path, log=print, sync: dict | None = None) -> in
                     log(f"sync: {run.name} not measured: {exc}")
                     continue
                 write_sync(run, table, ref, **{k: v for k, v in opts.items() if k != "per_frame"})
+            checks = [r for r in runs if cfgs[r].get("reference_check") and cfgs[r]["scene"]["name"] == scene
+                      and cfgs[r].get("seed") == seed and _completed(r)]
+            if checks:
+                reference_error(ref, {cfgs[c]["reference_check"]: c for c in checks}, opts, log)
     return measured
+
+
+# The perturbed restart's displacement: 0.1 mm, a thousandth of the study's edges (centimetres) and far
+# below a pixel of any shot, so what the reference restarted so against itself shows is chaos, not
+# the perturbation.
+FLOOR_PERTURBATION_M = 1e-4
+
+
+def reference_error(ref: Path, checks: dict, opts: dict, log=print) -> None:
+    """The reference's own error, by the re-synchronised error on the study's windows: the reference
+    restarted from each check's states (`checks`: reference_check -> run folder; fine: twice its
+    segments, half_dt: half its time step) against the check's continuation, into the reference's
+    folder as sync_<check>.parquet/.json; and the reference restarted from its own states moved by
+    FLOOR_PERTURBATION_M against itself (sync_floor.*: the floor chaos sets within a window)."""
+    write_opts = {k: v for k, v in opts.items() if k != "per_frame"}
+    for check, run in sorted(checks.items()):
+        log(f"sync: the reference {ref.name} restarted from {run.name}'s states (its own error: {check})")
+        try:
+            table = evaluate_sync(ref, run, **opts, log=log)
+        except AccuracyError as exc:
+            log(f"sync: the reference's own error ({check}) not measured: {exc}")
+            continue
+        write_sync(ref, table, run, **write_opts, stem=f"sync_{check}")
+    log(f"sync: the reference {ref.name} restarted {FLOOR_PERTURBATION_M * 1e3:g} mm off its own states (the floor)")
+    try:
+        table = evaluate_sync(ref, ref, **opts, log=log, perturb_m=FLOOR_PERTURBATION_M)
+    except AccuracyError as exc:
+        log(f"sync: the reference's floor not measured: {exc}")
+        return
+    write_sync(ref, table, ref, **write_opts, stem="sync_floor")
 
 
 def make_figures(sweep_dir: Path, log=print) -> Path:

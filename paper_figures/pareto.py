@@ -14,7 +14,10 @@ marks the front: no other run of the same scene and scale is at least as fast an
 accurate, and better in one; and its extra time buys an error that is told apart from every
 faster run's: with the runs' windows (sync.parquet), the 90 % bootstrap interval of the mean
 difference over the windows both have (the same restarts: paired) lies below 0; else, with
-intervals, its interval lies wholly below the faster run's.
+intervals, its interval lies wholly below the faster run's; and, where the study measured the
+reference's own error (its restart from a reference twice as fine and from one with half the time
+step: experiments.callbacks.reference_error), by at least RANK_FACTOR times that error, which the
+equal-quality choice respects too.
 """
 
 from __future__ import annotations
@@ -33,15 +36,19 @@ from experiments.analysis.sync import paired_difference_interval, read_windows
 from .common import MODE_MARKERS, MODE_NAMES, RunSet, Skip, color, place_labels, save_figure, script_main, write_table
 
 
-def pareto_front(time_s, error, lo=None, hi=None, better=None) -> np.ndarray:
+def pareto_front(time_s, error, lo=None, hi=None, better=None, min_difference: float = 0.0) -> np.ndarray:
     """on_front[i]: no point j has time_j <= time_i and error_j <= error_i with one of them <; and
     for every j with time_j < time_i, i's error is told apart as lower: better[i, j] when given
-    (a paired test), else hi_i < lo_j when intervals (lo, hi) are given."""
+    (a paired test), else hi_i < lo_j when intervals (lo, hi) are given; and in any case by at
+    least `min_difference` (the reference's own error times RANK_FACTOR: below it the reference
+    cannot rank two points)."""
     t, e = np.asarray(time_s, float), np.asarray(error, float)
     dominated = ((t[None, :] <= t[:, None]) & (e[None, :] <= e[:, None])
                  & ((t[None, :] < t[:, None]) | (e[None, :] < e[:, None])))
     front = ~dominated.any(axis=1)
     faster = t[None, :] < t[:, None]  # [i, j]: j is faster than i
+    if min_difference > 0:
+        front &= ~(faster & ~(e[None, :] - e[:, None] >= min_difference)).any(axis=1)
     if better is not None:
         front &= ~(faster & ~np.asarray(better, bool)).any(axis=1)
     elif lo is not None and hi is not None:
@@ -76,13 +83,34 @@ def _error_columns(g: pd.DataFrame) -> tuple[str, pd.Series, pd.Series | None, p
     return "error_px", g["error_px_mean"], None, None
 
 
-def equal_quality_fixed(g: pd.DataFrame, measure: str, err: pd.Series, lo, hi) -> str | None:
+# Two points whose errors differ by less than this many times the reference's own error are not
+# ranked: the reference itself is that far from the truth, so it cannot tell which is closer.
+RANK_FACTOR = 3.0
+
+
+def reference_error(runs: pd.DataFrame, scene: str, scale: str) -> tuple[float, float]:
+    """(own error, floor) in px of the references of a scene and scale: the largest of their errors
+    against their checks (twice as fine, half the time step: experiments.callbacks.reference_error)
+    and the largest perturbed-restart floor; NaN where not measured."""
+    if runs.empty or "reference_error_fine_px" not in runs.columns:
+        return math.nan, math.nan
+    refs = runs[runs["reference"].astype(bool) & (runs["scene"] == scene) & (runs["scale"] == scale)]
+    own = refs[["reference_error_fine_px", "reference_error_half_dt_px"]].to_numpy(float)
+    floor = refs["reference_floor_px"].to_numpy(float)
+    big = lambda a: float(np.nanmax(a)) if np.isfinite(a).any() else math.nan  # noqa: E731
+    return big(own), big(floor)
+
+
+def equal_quality_fixed(g: pd.DataFrame, measure: str, err: pd.Series, lo, hi,
+                        min_difference: float = 0.0) -> str | None:
     """The run of the coarsest fixed mesh (fewest faces) whose error is not told apart as worse than
     the adaptive run's (the default adaptive run of the group): with windows, the 90 % interval of
     their paired difference does not lie above 0; with intervals only, its interval does not lie
     wholly above adaptive's; without either, its mean error is not above adaptive's. The paper's
     baseline: a fixed mesh "selected to match the visual quality of the adaptive simulations"
-    (its Table 1 caption). None without an adaptive run or a fixed mesh that qualifies."""
+    (its Table 1 caption). A fixed mesh less than `min_difference` worse (RANK_FACTOR times the
+    reference's own error) is never told apart as worse. None without an adaptive run or a fixed
+    mesh that qualifies."""
     g = g.assign(_err=err.to_numpy(float), _lo=(lo.to_numpy(float) if lo is not None else np.nan),
                  _hi=(hi.to_numpy(float) if hi is not None else np.nan))
     ad = g[(g["mode"] == "adaptive") & g["variant"].isin(["", "adaptive"])]
@@ -100,6 +128,7 @@ def equal_quality_fixed(g: pd.DataFrame, measure: str, err: pd.Series, lo, hi) -
             worse = f["_lo"] > a["_hi"]
         else:
             worse = f["_err"] > a["_err"]
+        worse = worse and f["_err"] - a["_err"] >= min_difference
         if not worse:
             return f["run"]
     return None
@@ -176,7 +205,9 @@ def pareto_table(runs: pd.DataFrame) -> pd.DataFrame:
     (the re-synchronised error in mm on the cloth and in 1080p pixels), faces_mean, speedup (against
     the adaptive run of the scene in the same study and seed: a study's runs share a commit and a
     machine; NaN when that study has none), on_front, equal_quality (the coarsest fixed mesh whose
-    error is not told apart as worse than adaptive's: :func:`equal_quality_fixed`), floor_px (the
+    error is not told apart as worse than adaptive's: :func:`equal_quality_fixed`),
+    reference_error_px and reference_floor_px (:func:`reference_error`: no two points closer than
+    RANK_FACTOR times the first are ranked, on the front or for equal quality), floor_px (the
     reference ensemble's chaos floor over the whole run; NaN with one reference) and
     visible_distance (the statistics of visible cloth per shot, in spreads of the ensemble:
     cloth.eval.visible; NaN with one reference)."""
@@ -186,9 +217,11 @@ def pareto_table(runs: pd.DataFrame) -> pd.DataFrame:
     rows = []
     for (scene, scale), g in pts.groupby(["scene", "scale"], sort=True):
         measure, err, lo, hi = _error_columns(g)
+        own, floor = reference_error(runs, scene, scale) if measure == "sync_error_px" else (math.nan, math.nan)
+        min_diff = RANK_FACTOR * own if np.isfinite(own) else 0.0
         better = paired_better(g["path"]) if measure == "sync_error_px" and "path" in g.columns else None
-        front = pareto_front(g["time_mean_s"], err, lo, hi, better)
-        baseline = equal_quality_fixed(g, measure, err, lo, hi)
+        front = pareto_front(g["time_mean_s"], err, lo, hi, better, min_diff)
+        baseline = equal_quality_fixed(g, measure, err, lo, hi, min_diff)
         for i, (r, on) in enumerate(zip(g.itertuples(), front)):
             base = baseline_for(runs[runs["study"] == r.study], scene, scale, seed=r.seed)
             rows.append({"scene": scene, "scale": scale, "mode": r.mode, "variant": r.variant or r.mode, "run": r.run,
@@ -198,6 +231,7 @@ def pareto_table(runs: pd.DataFrame) -> pd.DataFrame:
                          **_other_units(r, measure), "faces_mean": r.faces_mean,
                          "speedup": base["time_mean_s"] / r.time_mean_s if base is not None else np.nan,
                          "on_front": bool(on), "equal_quality": r.run == baseline,
+                         "reference_error_px": own, "reference_floor_px": floor,
                          "floor_px": getattr(r, "floor_px_mean", np.nan),
                          "visible_distance": getattr(r, "visible_distance_mean", np.nan)})
     out = pd.DataFrame(rows)
@@ -238,6 +272,11 @@ def make(runset: RunSet, out, paper_timings=None, log=print) -> list[Path]:
     fig.tight_layout()
     for ax, (_, g) in zip(axes.flat, groups):  # labels last: they are placed as the final layout draws them
         place_labels(ax, g["time_mean_s"], g["error_px"], g["variant"])
+    for (scene, scale), g in groups:
+        own, floor = g["reference_error_px"].iloc[0], g["reference_floor_px"].iloc[0]
+        if np.isfinite(own):
+            log(f"pareto: {scene} ({scale}): the reference's own error {own:.3g} px (floor {floor:.3g} px): "
+                f"points closer than {RANK_FACTOR * own:.3g} px are not ranked")
     for r in table[table["equal_quality"]].itertuples():
         ad = table[(table["scene"] == r.scene) & (table["scale"] == r.scale) & (table["mode"] == "adaptive")]
         t_ad = float(ad["time_mean_s"].iloc[0]) if len(ad) else np.nan

@@ -66,10 +66,22 @@ def test_every_material_and_solver_builds(material, solver):
     ("resolution_factor=abc", "resolution_factor"),
     ("reference_member=-1", "reference_member"),
     ("reference_member=2", "reference_member"),  # a member is a reference run
+    ("reference_check=fine", "reference_check"),  # a check refines the reference
+    ("reference_check=coarse", "reference_check"),
 ])
 def test_config_errors_name_the_key(override, key):
     with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
         build_simulation(compose_config(override))
+
+
+def test_a_reference_check_doubles_the_references_segments_or_its_steps():
+    ref, _ = build_simulation(compose_config("reference=true"))
+    fine, _ = build_simulation(compose_config("reference=true", "reference_check=fine"))
+    half_dt, _ = build_simulation(compose_config("reference=true", "reference_check=half_dt"))
+    # sheet_on_sphere: 2 n^2 faces for n cells per side
+    assert fine.mesh.n_faces == 4 * ref.mesh.n_faces and half_dt.mesh.n_faces == ref.mesh.n_faces
+    assert half_dt.scene.steps_per_frame == 2 * ref.scene.steps_per_frame == 2 * fine.scene.steps_per_frame
+    assert half_dt.scene.frame_time == ref.scene.frame_time
 
 
 def test_resolution_factor_scales_the_fixed_mesh_only():

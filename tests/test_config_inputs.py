@@ -69,6 +69,8 @@ BAD = [
     (("resolution_factor=abc",), "resolution_factor"),
     (("reference=maybe",), "reference"),
     (("reference_member=-1",), "reference_member"),
+    (("reference_check=fine",), "reference_check"),
+    (("reference=true", "reference_check=twice"), "reference_check"),
     (("scale=huge",), "scale"),
     (("scene=multiple_dancers", "crowd_jobs=0"), "crowd_jobs"),
     # material, solver

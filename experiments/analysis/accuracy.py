@@ -75,9 +75,10 @@ FLOOR_SATURATION = 0.9
 TIME_TOL_S = 1e-9
 # A progress bar redraws at most this often (seconds): a log file gets a line per interval, not per frame.
 PROGRESS_INTERVAL_S = 10.0
-# Scene parameters that may differ between a run and its reference: the mesh resolution and the
-# presets that set it (the reference is finer by design).
-RESOLUTION_KEYS = ("resolution", "sizing", "reference")
+# Scene parameters that may differ between a run and its reference: the discretisation, in space
+# (the mesh resolution and the presets that set it: the reference is finer by design) and in time
+# (the implicit steps per frame: a reference with half the time step, a sweep of the steps).
+RESOLUTION_KEYS = ("resolution", "sizing", "reference", "steps_per_frame")
 
 
 class AccuracyError(ValueError):
@@ -155,8 +156,8 @@ def _first_difference(a, b, key: str):
 
 
 def check_configs(run_dir, ref_dir) -> None:
-    """A run and its reference are of the same scene (parameters apart from the resolution), camera
-    and frame time; AccuracyError names the first mismatch."""
+    """A run and its reference are of the same scene (parameters apart from the discretisation:
+    RESOLUTION_KEYS), camera and frame time; AccuracyError names the first mismatch."""
     run_dir, ref_dir = Path(run_dir), Path(ref_dir)
     for d in (run_dir, ref_dir):
         if not d.is_dir():

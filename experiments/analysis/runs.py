@@ -51,6 +51,10 @@ ACCURACY_KEYS = ("error_px_mean", "error_px_max", "silhouette_px_mean", "surface
 SYNC_KEYS = {**{f"{m}_{s}": f"{m}_{s}" for m in ("sync_error_px", "sync_error_mm", "sync_error_px1080")
                 for s in ("mean", "lo", "hi", "cut_mean")},
              "windows": "sync_windows", "horizon": "sync_horizon"}
+# The reference's own error (experiments.callbacks.reference_error), on a reference's row:
+# <file>.json's sync_error_px_mean / sync_error_mm_mean -> <column>_px / <column>_mm
+REFERENCE_ERROR_FILES = {"sync_fine": "reference_error_fine", "sync_half_dt": "reference_error_half_dt",
+                         "sync_floor": "reference_floor"}
 # Per-frame measures a scene declares (cloth.core.scene.Scene.probes) or the view gives, taken at
 # equilibrium: the mean over the last EQUILIBRIUM_FRAMES frames -> runs-table column <name>_final.
 SCENE_MEASURES = ("drape_coefficient", "folds", "hem_radius_mean_m", "compressive_energy_out_j")
@@ -263,7 +267,8 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
     size_min_fraction_mean / size_max_fraction_mean (faces at a sizing bound over faces, mean over
     the frames that remeshed) and edge_at_size_min_m (median over those frames; NaN without them),
     and accuracy.json's ACCURACY_KEYS plus accuracy_frames (NaN without accuracy), and sync.json's
-    SYNC_KEYS (the re-synchronised error; NaN without it).
+    SYNC_KEYS (the re-synchronised error; NaN without it), and on a reference the columns of
+    REFERENCE_ERROR_FILES (its own error against its checks, and its floor; NaN without them).
     """
     path = Path(path)
     cfg = _read_yaml(path / "config.yaml")
@@ -292,7 +297,8 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
     buckling = _get(cfg, "mode.buckling")
     row = {"path": str(path), "scene": str(scene), "mode": str(mode), "scale": _text(cfg.get("scale")),
            "study": _text(cfg.get("study")), "variant": _text(cfg.get("variant")),
-           "reference": bool(cfg.get("reference") or False), "seed": cfg.get("seed"), "timestamp": _timestamp(path)}
+           "reference": bool(cfg.get("reference") or False), "reference_check": _text(cfg.get("reference_check")),
+           "seed": cfg.get("seed"), "timestamp": _timestamp(path)}
     manifest = _manifest(path)
     row["code"] = code_label(manifest)
     row["numba_threads"] = _float(manifest.get("numba_threads"))
@@ -361,6 +367,15 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
                 row[col] = _float(sync.get(k))
         except _Bad as exc:
             notes.append(f"{exc}; the run is kept without its re-synchronised error")
+    for stem, col in REFERENCE_ERROR_FILES.items():
+        row[f"{col}_px"] = row[f"{col}_mm"] = math.nan
+        if (path / f"{stem}.json").exists():
+            try:
+                own = _read_json(path / f"{stem}.json", stem)
+                row[f"{col}_px"], row[f"{col}_mm"] = _float(own.get("sync_error_px_mean")), \
+                    _float(own.get("sync_error_mm_mean"))
+            except _Bad as exc:
+                notes.append(f"{exc}; the reference is kept without its own error ({stem})")
     if (path / "accuracy.parquet").exists():
         try:
             acc_frames = _read_parquet(path / "accuracy.parquet")

@@ -159,10 +159,13 @@ def _error(sim, path, ref: dict, resolution_scale: float) -> dict:
 
 def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, before_cut: int = BEFORE_CUT,
                  resolution_scale: float = RESOLUTION_SCALE, log=None, restart: str = "reference_mesh",
-                 per_frame: bool = False) -> pd.DataFrame:
+                 per_frame: bool = False, perturb_m: float = 0.0) -> pd.DataFrame:
     """The windows of one run against the reference (COLUMNS, one row per window); writes nothing.
     `restart`: one of RESTARTS (module docstring). `per_frame`: also the error at every frame of
-    every window, as ``.attrs["per_frame"]`` (FRAME_COLUMNS, one row per window and frame)."""
+    every window, as ``.attrs["per_frame"]`` (FRAME_COLUMNS, one row per window and frame).
+    `perturb_m` > 0: every free node of the restart state is first moved `perturb_m` metres in a
+    seeded random direction (:func:`perturbed`): the reference restarted so against itself gives the
+    floor that chaos alone sets within a window."""
     run_dir, ref_dir = Path(run_dir), Path(ref_dir)
     if restart not in RESTARTS:
         raise AccuracyError(f"--restart must be one of {', '.join(RESTARTS)}, got {restart!r}")
@@ -174,6 +177,8 @@ def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, b
         t0 = time.perf_counter()
         sim, _ = build_simulation(cfg)
         start = load_state(states[s][0])
+        if perturb_m > 0:
+            start = perturbed(start, perturb_m, seed=s)
         own_mesh = load_state(own[s][0]) if sim.remesher is not None and s in own else None
         sim.restart_from(start, own_mesh=own_mesh)
         h0 = _error(sim, path, start, resolution_scale)
@@ -203,6 +208,17 @@ def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, b
     if per_frame:
         table.attrs["per_frame"] = pd.DataFrame(frame_rows, columns=list(FRAME_COLUMNS))
     return table
+
+
+def perturbed(state: dict, distance_m: float, seed: int = 0) -> dict:
+    """A copy of a restart state whose free (unpinned) nodes are each moved `distance_m` metres in a
+    random direction (seeded: the same seed, the same perturbation); velocities unchanged."""
+    rng = np.random.default_rng(seed)
+    x = np.array(state["node_x"], dtype=np.float64)
+    free = ~np.asarray(state["node_pinned"], dtype=bool)
+    d = rng.normal(size=(int(free.sum()), 3))
+    x[free] += distance_m * d / np.linalg.norm(d, axis=1, keepdims=True)
+    return {**state, "node_x": x}
 
 
 def paired_difference_interval(a, b, resamples: int = BOOTSTRAP, seed: int = 0) -> tuple[float, float]:
@@ -265,17 +281,18 @@ def _by_h(per_frame: pd.DataFrame | None) -> dict:
 
 
 def write_sync(run_dir, table: pd.DataFrame, ref_dir, every=EVERY, horizon=HORIZON, before_cut=BEFORE_CUT,
-               resolution_scale=RESOLUTION_SCALE, restart: str = "reference_mesh") -> dict:
-    """sync.parquet and sync.json into `run_dir` (atomically), and sync_frames.parquet when the
-    table carries per-frame errors (evaluate_run's `per_frame`); returns the summary."""
+               resolution_scale=RESOLUTION_SCALE, restart: str = "reference_mesh", stem: str = "sync") -> dict:
+    """<stem>.parquet and <stem>.json into `run_dir` (atomically), and <stem>_frames.parquet when the
+    table carries per-frame errors (evaluate_run's `per_frame`); returns the summary. Another
+    `stem` keeps a second evaluation of the same run apart (the reference against its checks)."""
     summary = summarize(table, ref_dir, every, horizon, before_cut, resolution_scale, restart)
     per_frame = table.attrs.get("per_frame")
     if per_frame is not None:
-        write_parquet_atomic(Path(run_dir) / "sync_frames.parquet", per_frame)
+        write_parquet_atomic(Path(run_dir) / f"{stem}_frames.parquet", per_frame)
         table = table.copy()
         table.attrs = {}  # the per-frame table has its own file
-    write_parquet_atomic(Path(run_dir) / "sync.parquet", table)
-    write_json_atomic(Path(run_dir) / "sync.json", summary)
+    write_parquet_atomic(Path(run_dir) / f"{stem}.parquet", table)
+    write_json_atomic(Path(run_dir) / f"{stem}.json", summary)
     return summary
 
 
