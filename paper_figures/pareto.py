@@ -273,6 +273,8 @@ def make(runset: RunSet, out, paper_timings=None, log=print) -> list[Path]:
     for ax, (_, g) in zip(axes.flat, groups):  # labels last: they are placed as the final layout draws them
         place_labels(ax, g["time_mean_s"], g["error_px"], g["variant"])
     for (scene, scale), g in groups:
+        if "reference_error_px" not in g.columns:
+            continue
         own, floor = g["reference_error_px"].iloc[0], g["reference_floor_px"].iloc[0]
         if np.isfinite(own):
             log(f"pareto: {scene} ({scale}): the reference's own error {own:.3g} px (floor {floor:.3g} px): "

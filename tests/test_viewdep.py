@@ -308,3 +308,28 @@ def test_a_bad_view_value_names_its_key_once():
     with pytest.raises(ConfigError) as info:
         build_sim(SPHERE, "mode=viewdep", "camera=sheet_half", "mode.view.l_min_px=0")
     assert str(info.value).startswith("mode.view.l_min_px") and "view.view" not in str(info.value)
+
+
+@pytest.mark.slow
+def test_the_cut_into_the_hem_leaves_the_hem_beyond_the_margin_before_the_cut():
+    """conf/camera/dancer_cut_to_hem.yaml claims Fig. 3's setting: for the longest anticipation
+    window of the ablation (T = 10 frames) before its cut, all the cloth the new shot sees lies
+    beyond the margin of the old shot, where the view factor is nu_out (coarse without
+    anticipation)."""
+    sim = build_sim("scene=solo_dancer", "mode=viewdep", "camera=dancer_cut_to_hem", "mode.view.anticipation=false")
+    path, frame_time = sim.scene.camera, sim.scene.frame_time
+    cut = int(round(path.cuts[0] / frame_time))
+    new_shot = path.camera_at(path.cuts[0])
+    margin = sim.remesher.view.margin
+    nearest = []
+    while sim.frame < cut - 1:
+        sim.advance_frame()
+        if sim.frame >= cut - LONGEST_T:
+            x = sim.mesh.node_x
+            seen_after = new_shot.distance_to_frustum(x) == 0
+            assert seen_after.any(), f"frame {sim.frame}: no cloth in the new shot"
+            nearest.append(float(path.camera_at(sim.time).distance_to_frustum(x[seen_after]).min()))
+    assert len(nearest) == LONGEST_T and min(nearest) > margin, nearest
+
+
+LONGEST_T = 10  # frames: conf/point/T/10.yaml, the longest window of the anticipation ablation
