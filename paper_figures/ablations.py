@@ -15,8 +15,11 @@ the first cut, else every run): faces, faces in view, screen-space error and
 popping over time with the camera cuts marked; per variant the mean error and popping over the
 CUT_WINDOW_FRAMES frames from each cut, and the re-synchronised error of the windows that start
 before a cut and end after it (sync_error_px_cut_mean of sync.json: what refining before the
-cut buys on screen), beside faces and simulation time per frame (what it costs).
--> ablation_anticipation.png/.pdf, ablation_anticipation.csv/.md.
+cut buys on screen), beside faces and simulation time per frame (what it costs). With several
+seeds (repeats), each seed's runs are compared among themselves and the table gives the medians
+over the seeds, the cut windows' error with its interval, and its paired difference from the run
+without anticipation of the same seed; the plots show the first seed.
+-> ablation_anticipation.png/.pdf, ablation_anticipation.csv/.md, ablation_anticipation_seeds.csv/.md.
 """
 
 from __future__ import annotations
@@ -27,6 +30,9 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
+
+from experiments.analysis.accuracy import bootstrap_mean_interval
+from experiments.analysis.sync import paired_difference_interval
 
 from .common import (
     RunSet,
@@ -263,44 +269,81 @@ def anticipation(runset: RunSet, out) -> list[Path]:
     vd = runs[(runs["mode"] == "viewdep") & runs["anticipation"].notna()] if len(runs) else runs
     if vd.empty:
         raise Skip("anticipation: no viewdep runs")
-    vd = vd.assign(lead=[lead_label(r) for _, r in vd.iterrows()])
-    pts = pd.concat([one_factor(g, "lead", ANTICIPATION_OTHERS) for _, g in vd.groupby(["scene", "scale"])])
+    vd = vd.assign(lead=[lead_label(r) for _, r in vd.iterrows()], _seed=vd["seed"].fillna(0).astype(int))
+    pts = pd.concat([one_factor(g, "lead", ANTICIPATION_OTHERS) for _, g in vd.groupby(["scene", "scale", "_seed"])])
     if pts.empty:
         raise Skip("anticipation: no viewdep runs that differ only in their anticipation (mode.view.anticipation, T)")
     pts = pts.assign(_order=[-1.0 if lead == "off" else float(T) for lead, T in zip(pts["lead"], pts["T"])])
-    pts = pts.sort_values(["scene", "scale", "_order"]).drop(columns="_order")
-    labels = [("without anticipation" if r.lead == "off" else f"anticipation {r.lead} frames")
-              + (f" ({r.scene})" if pts["scene"].nunique() > 1 else "") for r in pts.itertuples()]
+    pts = pts.sort_values(["scene", "scale", "_order", "_seed"]).drop(columns="_order")
     cuts = sorted({c for cs in pts["camera_cuts_s"] for c in cs})
     col = lambda name: pts[name].to_numpy() if name in pts.columns else np.full(len(pts), np.nan)  # noqa: E731
-    table = pd.DataFrame({"scene": pts["scene"].to_numpy(), "scale": pts["scale"].to_numpy(),
-                          "anticipation": pts["lead"].to_numpy(), "run": pts["run"].to_numpy(),
-                          "faces_mean": pts["faces_mean"].to_numpy(), "time_mean_s": pts["time_mean_s"].to_numpy(),
-                          "faces_in_view_after_cut": [_after_cut(runset, r, r["camera_cuts_s"], "faces_in_view")
-                                                      for _, r in pts.iterrows()],
-                          "error_px_mean": pts["error_px_mean"].to_numpy(),
-                          "error_px_after_cut_mean": [_after_cut(runset, r, r["camera_cuts_s"])
-                                                      for _, r in pts.iterrows()],
-                          "sync_error_px_cut_mean": col("sync_error_px_cut_mean"),
-                          "popping_px_mean": col("popping_px_mean"),
-                          "popping_px_after_cut_mean": [_after_cut(runset, r, r["camera_cuts_s"], "popping_px")
-                                                        for _, r in pts.iterrows()]})
+    after = lambda name: [_after_cut(runset, r, r["camera_cuts_s"], name) for _, r in pts.iterrows()]  # noqa: E731
+    per_seed = pd.DataFrame({"scene": pts["scene"].to_numpy(), "scale": pts["scale"].to_numpy(),
+                             "anticipation": pts["lead"].to_numpy(), "seed": pts["_seed"].to_numpy(),
+                             "run": pts["run"].to_numpy(), "faces_mean": pts["faces_mean"].to_numpy(),
+                             "time_mean_s": pts["time_mean_s"].to_numpy(),
+                             "faces_in_view_after_cut": after("faces_in_view"),
+                             "error_px_mean": pts["error_px_mean"].to_numpy(),
+                             "error_px_after_cut_mean": after("error_px"),
+                             "sync_error_px_cut_mean": col("sync_error_px_cut_mean"),
+                             "popping_px_mean": col("popping_px_mean"),
+                             "popping_px_after_cut_mean": after("popping_px")})
+    table = over_seeds(per_seed)
+    first = pts.groupby(["scene", "scale"])["_seed"].transform("min") == pts["_seed"]  # the plots: one seed
+    shown = pts[first.to_numpy()]
+    labels = [("without anticipation" if r.lead == "off" else f"anticipation {r.lead} frames")
+              + (f" ({r.scene})" if shown["scene"].nunique() > 1 else "") for r in shown.itertuples()]
     fig, axes = plt.subplots(4, 1, figsize=(8, 10), sharex=True)
-    _plot_over_time(axes[0], runset, pts, "faces", labels, "faces")
-    _plot_over_time(axes[1], runset, pts, "faces_in_view", labels, "faces in view")
-    _plot_over_time(axes[2], runset, pts, "error_px", labels, "screen-space error (px)")
-    _plot_over_time(axes[3], runset, pts, "popping_px", labels, "popping (px)")
+    _plot_over_time(axes[0], runset, shown, "faces", labels, "faces")
+    _plot_over_time(axes[1], runset, shown, "faces_in_view", labels, "faces in view")
+    _plot_over_time(axes[2], runset, shown, "error_px", labels, "screen-space error (px)")
+    _plot_over_time(axes[3], runset, shown, "popping_px", labels, "popping (px)")
     for ax in axes:
         for c in cuts:
             ax.axvline(c, color="0.2", ls=":", lw=1.0)
-    axes[3].set_xlabel("simulated time (s); dotted: camera cuts")
+    axes[3].set_xlabel(f"simulated time (s); dotted: camera cuts (seed {int(shown['_seed'].min())})")
     fig.suptitle("Temporal anticipation of camera cuts (the paper's Fig. 3)")
     fig.tight_layout()
+    cut_text = ", ".join(f"{c:g} s" for c in cuts) or "(no cut)"
     return save_figure(fig, out, "ablation_anticipation") + write_table(
         table, out, "ablation_anticipation",
-        f"Anticipation ablation (the paper's Fig. 3); after a cut: mean over {CUT_WINDOW_FRAMES} frames "
-        f"from each cut at {', '.join(f'{c:g} s' for c in cuts) or '(no cut)'}; sync_error_px_cut_mean: the "
-        f"re-synchronised error of the windows that start before a cut and end after it")
+        f"Anticipation ablation (the paper's Fig. 3), over {table['seeds'].max()} seed(s): medians over the seeds, "
+        f"after a cut: mean over {CUT_WINDOW_FRAMES} frames from each cut at {cut_text}; sync_error_px_cut_mean: "
+        f"the re-synchronised error of the windows that start before a cut and end after it, its mean over the "
+        f"seeds with the 90 % BCa interval, and cut_vs_off: its paired difference from the run without "
+        f"anticipation of the same seed") + write_table(
+        per_seed, out, "ablation_anticipation_seeds", "Anticipation ablation, every seed")
+
+
+# per-seed columns whose median over the seeds the anticipation table gives
+SEED_MEDIANS = ("faces_mean", "time_mean_s", "faces_in_view_after_cut", "error_px_mean", "error_px_after_cut_mean",
+                "popping_px_mean", "popping_px_after_cut_mean")
+
+
+def over_seeds(per_seed: pd.DataFrame) -> pd.DataFrame:
+    """One row per scene, scale and anticipation of a per-seed table: seeds, the median of each of
+    SEED_MEDIANS, sync_error_px_cut_mean (the mean over the seeds) with its 90 % BCa interval
+    (_lo, _hi), and cut_vs_off_px with _lo, _hi: the mean of its difference from the run without
+    anticipation of the same seed, with the paired interval (NaN without such runs, or an interval
+    from fewer than two seeds)."""
+    rows = []
+    for (scene, scale), g in per_seed.groupby(["scene", "scale"], sort=False):
+        off = g[g["anticipation"] == "off"].set_index("seed")["sync_error_px_cut_mean"].astype(float)
+        for lead, h in g.groupby("anticipation", sort=False):
+            sync = h.set_index("seed")["sync_error_px_cut_mean"].astype(float)
+            ok = sync[np.isfinite(sync)]
+            lo, hi = bootstrap_mean_interval(ok.to_numpy()) if len(ok) > 1 else (np.nan, np.nan)
+            both = sync.index.intersection(off.index)
+            diff = (sync[both] - off[both]).dropna()
+            d_lo, d_hi = paired_difference_interval(sync[both], off[both]) if len(diff) > 1 else (np.nan, np.nan)
+            rows.append({"scene": scene, "scale": scale, "anticipation": lead, "seeds": int(len(h)),
+                         **{c: float(h[c].median()) for c in SEED_MEDIANS},
+                         "sync_error_px_cut_mean": float(ok.mean()) if len(ok) else np.nan,
+                         "sync_error_px_cut_lo": lo, "sync_error_px_cut_hi": hi,
+                         "cut_vs_off_px": float(diff.mean()) if len(diff) and lead != "off" else np.nan,
+                         "cut_vs_off_lo_px": d_lo if lead != "off" else np.nan,
+                         "cut_vs_off_hi_px": d_hi if lead != "off" else np.nan})
+    return pd.DataFrame(rows)
 
 
 def make(runset: RunSet, out, paper_timings=None, log=print) -> list[Path]:

@@ -360,7 +360,8 @@ def test_paper_figures_write_every_expected_file(tmp_path, capsys):
                 "sweep_T.png", "sweep_T.pdf",  # the anticipation runs at T = 2 and 5
                 "sweeps.csv", "sweeps.md", "ablation_buckling.png", "ablation_buckling.pdf", "ablation_buckling.csv",
                 "ablation_buckling.md", "ablation_anticipation.png", "ablation_anticipation.pdf",
-                "ablation_anticipation.csv", "ablation_anticipation.md", "pareto.png", "pareto.pdf", "pareto.csv",
+                "ablation_anticipation.csv", "ablation_anticipation.md", "ablation_anticipation_seeds.csv",
+                "ablation_anticipation_seeds.md", "pareto.png", "pareto.pdf", "pareto.csv",
                 "pareto.md"}
     written = {p.name for p in out.iterdir()}
     assert written == expected, f"missing {expected - written}, unexpected {written - expected}"
@@ -391,6 +392,7 @@ def test_paper_figures_write_every_expected_file(tmp_path, capsys):
     assert an["sync_error_px_cut_mean"].tolist() == [4.0, 2.0, 1.0]
     assert np.allclose(an["popping_px_after_cut_mean"], 0.3, rtol=0, atol=EXACT_TOL)
     assert an["faces_in_view_after_cut"].tolist() == [9] * 3
+    assert an["seeds"].tolist() == [1] * 3 and np.allclose(an["cut_vs_off_px"].iloc[1:], [2.0 - 4.0, 1.0 - 4.0])
     # Pareto over every run with accuracy (same scene): fastest is nu_out=0.001 (0.25 s, 4 px),
     # nu_out=0.01 at 0.5 s with 2 px dominates nu_out=0.1 (0.8 s, 3 px) and the anticipation (2.5, 3.75 px)
     # and buckling (3, 4, 5 px) runs at 0.5 s; adaptive (1 s, 0.5 px) is the most accurate.

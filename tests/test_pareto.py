@@ -172,3 +172,19 @@ def test_the_pareto_figure_writes_the_equivalence_table(tmp_path):
     eq = pd.read_csv(tmp_path / "fig" / "equivalence.csv")
     assert eq[["scene", "variant", "equivalent"]].values.tolist() == [["solo_dancer", "fixed x1", True]]
     assert any("equal quality by equivalence: fixed x1 (x1 as run)" in line for line in logs)
+
+
+def test_the_anticipation_table_over_seeds_pairs_each_window_with_the_same_seeds_run_without():
+    from paper_figures.ablations import SEED_MEDIANS, over_seeds
+
+    per_seed = pd.DataFrame({"scene": "solo_dancer", "scale": "small",
+                             "anticipation": ["off", "off", "off", "T=5", "T=5", "T=5"], "seed": [0, 1, 2, 0, 1, 2],
+                             "sync_error_px_cut_mean": [4.0, 6.0, 9.0, 1.0, 2.0, 8.0],
+                             **{c: [1.0, 2.0, 30.0, 4.0, 5.0, 6.0] for c in SEED_MEDIANS}})
+    t = over_seeds(per_seed).set_index("anticipation")
+    assert t.loc["T=5", "seeds"] == 3 and t.loc["T=5", "faces_mean"] == 5.0 and t.loc["off", "faces_mean"] == 2.0
+    assert abs(t.loc["T=5", "sync_error_px_cut_mean"] - 11.0 / 3) <= 1e-12
+    assert abs(t.loc["T=5", "cut_vs_off_px"] - (-3.0 - 4.0 - 1.0) / 3) <= 1e-12  # paired by seed
+    lo, hi = t.loc["T=5", ["cut_vs_off_lo_px", "cut_vs_off_hi_px"]]
+    assert lo <= t.loc["T=5", "cut_vs_off_px"] <= hi
+    assert np.isnan(t.loc["off", "cut_vs_off_px"])

@@ -360,17 +360,17 @@ def test_a_preset_runs_as_a_multirun_and_its_callback_aggregates(tmp_path):
     measures them against the reference and writes the study's figures."""
     sweep = tmp_path / "sweep"
     proc = run_module("experiments.run", "experiment=ablation_anticipation", "frames=2",  # a multirun without -m
-                      "hydra.callbacks.study.sync.horizon=1",  # the preset's 8-frame windows do not fit in 2
+                      "repeats=1", "hydra.callbacks.study.sync.horizon=1",  # the preset's 8-frame windows do not fit in 2
                       f"hydra.sweep.dir={sweep}", timeout=900)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     runs = _completed(sweep)
     cfgs = [yaml.safe_load((r / "config.yaml").read_text()) for r in runs]
-    assert len(runs) == 5 and {c["study"] for c in cfgs} == {"ablation_anticipation"}
+    assert len(runs) == 6 and {c["study"] for c in cfgs} == {"ablation_anticipation"}
     assert {c["scene"]["name"] for c in cfgs} == {"solo_dancer"}
     assert sum(bool(c["reference"]) for c in cfgs) == 1
     assert sorted((c["mode"]["view"]["anticipation"], c["mode"]["view"]["anticipation_frames"])
-                  for c in cfgs if not c["reference"]) == [(False, 5), (True, 2), (True, 5), (True, 10)]
-    assert sum((r / "accuracy.json").exists() for r in runs) == 4
+                  for c in cfgs if not c["reference"]) == [(False, 5), (True, 0), (True, 2), (True, 5), (True, 10)]
+    assert sum((r / "accuracy.json").exists() for r in runs) == 5
     # the re-synchronised error: frame 0's window only (every = 1000; the cuts come later)
     assert all(json.loads((r / "sync.json").read_text())["windows"] == 1 for r in runs)
     assert any((sweep / "figures").iterdir())
