@@ -92,15 +92,19 @@ def measure_accuracy(sweep_dir: Path, log=print, sync: dict | None = None) -> in
                 write_accuracy(run, table, members if len(members) > 1 else ref)
                 measured += 1
         if sync is not None and (cfgs[ref].get("reference_member") or 0) == 0:
-            opts = {k: v for k, v in sync.items() if k != "reference"}
+            opts = {k: v for k, v in sync.items() if k not in ("reference", "members")}
+            n = int(sync.get("members", 1))
+            if n > len(members):
+                log(f"sync: {n} members asked, {len(members)} completed; the windows restart from those")
+            starts = members[:n] if n > 1 else ref  # every window from each of the first n members' states
             for run in ([ref] if sync.get("reference", True) else []) + targets:
-                log(f"sync: {run.name} restarted from {ref.name}'s states")
+                log(f"sync: {run.name} restarted from {ref.name if n == 1 else f'{len(starts)} members'}'s states")
                 try:
-                    table = evaluate_sync(run, ref, **opts, log=log)
+                    table = evaluate_sync(run, starts, **opts, log=log)
                 except AccuracyError as exc:  # e.g. a run too short for a window: the others go on
                     log(f"sync: {run.name} not measured: {exc}")
                     continue
-                write_sync(run, table, ref, **{k: v for k, v in opts.items() if k != "per_frame"})
+                write_sync(run, table, starts, **{k: v for k, v in opts.items() if k != "per_frame"})
             checks = [r for r in runs if cfgs[r].get("reference_check") and cfgs[r]["scene"]["name"] == scene
                       and cfgs[r].get("seed") == seed and _completed(r)]
             if checks:
@@ -158,14 +162,15 @@ class StudyCallback(Callback):
 
     def __init__(self, accuracy: bool = True, figures: bool = True, sync=None) -> None:
         """`sync`: None, or the options of the re-synchronised error (every, horizon, before_cut,
-        resolution_scale, restart, per_frame; experiments.sync defaults for those not given) and `reference` (default
-        true: also the reference restarted from its own states, which measures the restart at
-        the cost of the reference's frames again)."""
+        resolution_scale, restart, per_frame; experiments.sync defaults for those not given),
+        `members` (default 1: every window restarted from member 0's states only; N: from each of
+        the first N members') and `reference` (default true: also the reference restarted from its
+        own states, which measures the restart at the cost of the reference's frames again)."""
         self.accuracy, self.figures = bool(accuracy), bool(figures)
         self.sync = None
         if sync is not None:
             opts = {"every": EVERY, "horizon": HORIZON, "before_cut": BEFORE_CUT, "resolution_scale": RESOLUTION_SCALE,
-                    "reference": True, "restart": "reference_mesh", "per_frame": False}
+                    "reference": True, "restart": "reference_mesh", "per_frame": False, "members": 1}
             unknown = set(sync) - set(opts)
             if unknown:
                 raise ValueError(f"hydra.callbacks.study.sync: unknown option(s) {sorted(unknown)}; "
@@ -175,6 +180,9 @@ class StudyCallback(Callback):
             for flag in ("reference", "per_frame"):
                 if not isinstance(opts[flag], bool):
                     raise ValueError(f"hydra.callbacks.study.sync.{flag}: true or false, got {opts[flag]!r}")
+            m = opts["members"]
+            if not (isinstance(m, int) and not isinstance(m, bool) and m >= 1):
+                raise ValueError(f"hydra.callbacks.study.sync.members: an integer >= 1, got {opts['members']!r}")
             if opts["restart"] not in RESTARTS:
                 raise ValueError(f"hydra.callbacks.study.sync.restart: one of {', '.join(RESTARTS)}, "
                                  f"got {opts['restart']!r}")

@@ -260,6 +260,9 @@ def test_a_study_callback_with_unknown_sync_options_is_refused():
     assert StudyCallback(sync={"per_frame": True}).sync["per_frame"] is True
     with pytest.raises(ValueError, match="sync.per_frame: true or false"):
         StudyCallback(sync={"per_frame": "yes"})
+    assert StudyCallback(sync={}).sync["members"] == 1 and StudyCallback(sync={"members": 5}).sync["members"] == 5
+    with pytest.raises(ValueError, match="sync.members: an integer >= 1"):
+        StudyCallback(sync={"members": 0})
 
 
 def test_submitit_local_launcher(tmp_path):
@@ -360,7 +363,8 @@ def test_a_preset_runs_as_a_multirun_and_its_callback_aggregates(tmp_path):
     measures them against the reference and writes the study's figures."""
     sweep = tmp_path / "sweep"
     proc = run_module("experiments.run", "experiment=ablation_anticipation", "frames=2",  # a multirun without -m
-                      "repeats=1", "hydra.callbacks.study.sync.horizon=1",  # the preset's 8-frame windows do not fit in 2
+                      "repeats=1",  # one seed: the preset's five are what a study needs, not this test
+                      "hydra.callbacks.study.sync.horizon=1",  # the preset's 8-frame windows do not fit in 2
                       f"hydra.sweep.dir={sweep}", timeout=900)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     runs = _completed(sweep)

@@ -388,3 +388,28 @@ def test_sync_per_frame_records_every_frame_of_every_window_and_the_reference_is
     # the reference restarted from itself stays on itself at every frame of the window, not only at H
     assert pd.read_parquet(runs["ref"] / "sync_frames.parquet")["sync_error_px"].max() < SELF_RESTART_PX
     assert pd.read_parquet(runs["adaptive"] / "sync_frames.parquet")["sync_error_px"].max() > SELF_RESTART_PX
+
+
+def test_sync_restarts_every_window_from_each_member_and_pairs_them_member_by_member(sync_runs, tmp_path):
+    from experiments.analysis.sync import main, paired_difference_interval, read_windows
+
+    member = tmp_path / "member"  # the reference's configuration with another seed: another trajectory
+    run_config(member, *TINY, "mode=nonadaptive", "scene.scales.small.resolution=10", "seed=1")
+    ref = sync_runs / "ref"
+    runs = {name: tmp_path / name for name in ("ref", "fixed")}
+    for name, d in runs.items():
+        shutil.copytree(sync_runs / name, d)
+    assert main([*map(str, runs.values()), "--reference", str(ref), str(member), "--every", "2", "--horizon", "2",
+                 "--resolution-scale", "0.25"]) == 0
+    for d in runs.values():
+        table = pd.read_parquet(d / "sync.parquet")
+        assert table[["member", "sync_frame"]].values.tolist() == [[0, 0], [0, 2], [1, 0], [1, 2]]
+        s = json.loads((d / "sync.json").read_text())
+        assert s["windows"] == 4 and s["members"] == 2
+    # the reference's configuration restarted from either member's state continues as that member
+    assert pd.read_parquet(runs["ref"] / "sync.parquet")["sync_error_px"].max() < SELF_RESTART_PX
+    # two runs pair window by window within each member
+    a, b = read_windows(runs["fixed"]), read_windows(runs["ref"])
+    assert list(a.index) == [(0, 0), (0, 2), (1, 0), (1, 2)]
+    lo, hi = paired_difference_interval(a, b)
+    assert 0 < lo <= hi

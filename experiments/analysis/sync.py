@@ -1,6 +1,6 @@
 """Re-synchronised short-horizon error: what coarsening costs on screen, with chaos taken out.
 
-    python -m experiments.sync RUN_DIR [RUN_DIR ...] --reference REF_DIR [--every 10] [--horizon 8]
+    python -m experiments.sync RUN_DIR [RUN_DIR ...] --reference REF_DIR [REF_DIR ...] [--every 10] [--horizon 8]
                                [--before-cut 5] [--resolution-scale 0.5]
                                [--restart reference_mesh|own_mesh] [--per-frame]
 
@@ -32,7 +32,10 @@ can be evaluated. The reference needs
 per-frame states with restart data (written by this code's runner with output.states_every=1)
 at every sync frame and every window's end. Writes into each RUN_DIR:
 
-* ``sync.parquet``: one row per window: sync_frame, frame (its end), before_cut (a window
+* ``sync.parquet``: one row per window: member (with several ``--reference`` folders, the
+  members of an ensemble: every window is restarted from each member's state and compared with
+  that member's continuation, so the windows multiply and pair member by member), sync_frame,
+  frame (its end), before_cut (a window
   ending just after a cut's lead), sync_error_px, sync_error_p90_px, sync_error_mm,
   sync_error_p90_mm, sync_error_px1080 (cloth.eval.correspondence), sync_samples,
   sync_error_h0_px and sync_error_h0_mm (at the window's start, right after the restart), faces_mean
@@ -78,11 +81,11 @@ from experiments.build import ConfigError, build_simulation, camera_path, crowd_
 EVERY, HORIZON, BEFORE_CUT = 10, 8, 5  # frames: the issue's defaults
 RESTARTS = ("reference_mesh", "own_mesh")  # on which mesh a remeshing mode restarts (module docstring)
 RESOLUTION_SCALE = 0.5  # rendered image / camera image: samples every 2 camera pixels (distances stay in camera px)
-COLUMNS = ("sync_frame", "frame", "before_cut", *ERROR_KEYS, "sync_samples",
+COLUMNS = ("member", "sync_frame", "frame", "before_cut", *ERROR_KEYS, "sync_samples",
            "sync_error_h0_px", "sync_error_h0_mm", "faces_mean", "sim_s", "diverged")
 # the summaries' measures: the camera's pixels, millimetres on the cloth, pixels of a 1080p image
 MEASURES = ("sync_error_px", "sync_error_mm", "sync_error_px1080")
-FRAME_COLUMNS = ("sync_frame", "h", "frame", *MEASURES, "faces", "sim_s")  # sync_frames.parquet (--per-frame)
+FRAME_COLUMNS = ("member", "sync_frame", "h", "frame", *MEASURES, "faces", "sim_s")  # sync_frames.parquet (--per-frame)
 
 
 def definition() -> str:
@@ -157,53 +160,68 @@ def _error(sim, path, ref: dict, resolution_scale: float) -> dict:
     return correspondence_error(camera, image, ref, run)
 
 
+def _members(ref_dir) -> list[Path]:
+    """The reference folders of `ref_dir`: one folder, or a list (the members of an ensemble, member 0 first)."""
+    dirs = [Path(ref_dir)] if isinstance(ref_dir, (str, Path)) else [Path(d) for d in ref_dir]
+    if not dirs:
+        raise AccuracyError("no reference given")
+    return dirs
+
+
 def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, before_cut: int = BEFORE_CUT,
                  resolution_scale: float = RESOLUTION_SCALE, log=None, restart: str = "reference_mesh",
                  per_frame: bool = False, perturb_m: float = 0.0) -> pd.DataFrame:
     """The windows of one run against the reference (COLUMNS, one row per window); writes nothing.
+    `ref_dir`: the reference's folder, or a list of the folders of a reference ensemble's members:
+    then every window is restarted from each member's state and compared with that member's own
+    continuation (column ``member``: its place in the list), so that the windows multiply by the
+    members and pair up, member by member, between runs.
     `restart`: one of RESTARTS (module docstring). `per_frame`: also the error at every frame of
     every window, as ``.attrs["per_frame"]`` (FRAME_COLUMNS, one row per window and frame).
     `perturb_m` > 0: every free node of the restart state is first moved `perturb_m` metres in a
     seeded random direction (:func:`perturbed`): the reference restarted so against itself gives the
     floor that chaos alone sets within a window."""
-    run_dir, ref_dir = Path(run_dir), Path(ref_dir)
+    run_dir, members = Path(run_dir), _members(ref_dir)
     if restart not in RESTARTS:
         raise AccuracyError(f"--restart must be one of {', '.join(RESTARTS)}, got {restart!r}")
-    cfg, path, windows = plan(run_dir, ref_dir, every, horizon, before_cut, restart, per_frame)
-    states = state_files(ref_dir)
+    planned = [plan(run_dir, m, every, horizon, before_cut, restart, per_frame) for m in members]  # all, before work
     own = state_files(run_dir) if restart == "own_mesh" else {}
     rows, frame_rows = [], []
-    for s, cut in windows:
-        t0 = time.perf_counter()
-        sim, _ = build_simulation(cfg)
-        start = load_state(states[s][0])
-        if perturb_m > 0:
-            start = perturbed(start, perturb_m, seed=s)
-        own_mesh = load_state(own[s][0]) if sim.remesher is not None and s in own else None
-        sim.restart_from(start, own_mesh=own_mesh)
-        h0 = _error(sim, path, start, resolution_scale)
-        faces, sim_s, diverged = [], 0.0, False
-        try:
-            for h in range(1, horizon + 1):
-                rec = sim.advance_frame()
-                faces.append(rec["faces"])
-                sim_s += rec["sim_s"]
-                if per_frame:
-                    e = _error(sim, path, load_state(states[s + h][0]), resolution_scale)
-                    frame_rows.append({"sync_frame": s, "h": h, "frame": s + h, **{m: e[m] for m in MEASURES},
-                                       "faces": rec["faces"], "sim_s": rec["sim_s"]})
-        except SimulationDiverged:
-            diverged = True
-        row = {"sync_frame": s, "frame": s + horizon, "before_cut": cut, "faces_mean": float(np.mean(faces or [0])),
-               "sim_s": sim_s / max(len(faces), 1), "diverged": diverged, "sync_error_h0_px": h0["sync_error_px"],
-               "sync_error_h0_mm": h0["sync_error_mm"], **dict.fromkeys(ERROR_KEYS, math.nan), "sync_samples": 0}
-        if not diverged:
-            row.update(_error(sim, path, load_state(states[s + horizon][0]), resolution_scale))
-        rows.append(row)
-        if log:
-            log(f"  {run_dir.name}: window {s}..{s + horizon}{' (before a cut)' if cut else ''}: "
-                f"{row['sync_error_px']:.2f} px ({row['sync_error_mm']:.2f} mm), {row['faces_mean']:.0f} faces, "
-                f"{time.perf_counter() - t0:.1f} s")
+    for k, (member, (cfg, path, windows)) in enumerate(zip(members, planned)):
+        states = state_files(member)
+        for s, cut in windows:
+            t0 = time.perf_counter()
+            sim, _ = build_simulation(cfg)
+            start = load_state(states[s][0])
+            if perturb_m > 0:
+                start = perturbed(start, perturb_m, seed=s + 1000 * k)
+            own_mesh = load_state(own[s][0]) if sim.remesher is not None and s in own else None
+            sim.restart_from(start, own_mesh=own_mesh)
+            h0 = _error(sim, path, start, resolution_scale)
+            faces, sim_s, diverged = [], 0.0, False
+            try:
+                for h in range(1, horizon + 1):
+                    rec = sim.advance_frame()
+                    faces.append(rec["faces"])
+                    sim_s += rec["sim_s"]
+                    if per_frame:
+                        e = _error(sim, path, load_state(states[s + h][0]), resolution_scale)
+                        frame_rows.append({"member": k, "sync_frame": s, "h": h, "frame": s + h,
+                                           **{m: e[m] for m in MEASURES}, "faces": rec["faces"], "sim_s": rec["sim_s"]})
+            except SimulationDiverged:
+                diverged = True
+            row = {"member": k, "sync_frame": s, "frame": s + horizon, "before_cut": cut,
+                   "faces_mean": float(np.mean(faces or [0])), "sim_s": sim_s / max(len(faces), 1),
+                   "diverged": diverged, "sync_error_h0_px": h0["sync_error_px"],
+                   "sync_error_h0_mm": h0["sync_error_mm"],
+                   **dict.fromkeys(ERROR_KEYS, math.nan), "sync_samples": 0}
+            if not diverged:
+                row.update(_error(sim, path, load_state(states[s + horizon][0]), resolution_scale))
+            rows.append(row)
+            if log:
+                log(f"  {run_dir.name}: {f'member {k}, ' if len(members) > 1 else ''}window {s}..{s + horizon}"
+                    f"{' (before a cut)' if cut else ''}: {row['sync_error_px']:.2f} px "
+                    f"({row['sync_error_mm']:.2f} mm), {row['faces_mean']:.0f} faces, {time.perf_counter() - t0:.1f} s")
     table = pd.DataFrame(rows, columns=list(COLUMNS))
     if per_frame:
         table.attrs["per_frame"] = pd.DataFrame(frame_rows, columns=list(FRAME_COLUMNS))
@@ -223,7 +241,7 @@ def perturbed(state: dict, distance_m: float, seed: int = 0) -> dict:
 
 def paired_difference_interval(a, b, resamples: int = BOOTSTRAP, seed: int = 0) -> tuple[float, float]:
     """90 % BCa bootstrap interval (paired: of the mean of a - b) over windows both have (pandas Series indexed
-    by sync frame, or arrays of equal length): two runs restarted from the same states are
+    by window, as :func:`read_windows` gives, or arrays of equal length): two runs restarted from the same states are
     compared window by window, so the phase of the dance (which sets how large every run's error
     is) cancels. (nan, nan) without a common finite window."""
     if isinstance(a, pd.Series) and isinstance(b, pd.Series):
@@ -233,16 +251,21 @@ def paired_difference_interval(a, b, resamples: int = BOOTSTRAP, seed: int = 0) 
 
 
 def read_windows(run_dir, measure: str = "sync_error_px") -> pd.Series | None:
-    """`measure` (a column of COLUMNS) of a run folder's sync.parquet indexed by sync_frame (None
-    without one, or without that column: an evaluation older than it)."""
+    """`measure` (a column of COLUMNS) of a run folder's sync.parquet indexed by (member, sync_frame)
+    (member 0 for an evaluation from before the column), so that two runs pair window by window;
+    None without one, or without that column (an evaluation older than it)."""
     f = Path(run_dir) / "sync.parquet"
     if not f.is_file():
         return None
     try:
-        t = pd.read_parquet(f, columns=["sync_frame", measure])
-    except (OSError, ValueError, KeyError):
+        t = pd.read_parquet(f)
+    except (OSError, ValueError):
         return None
-    return t.set_index("sync_frame")[measure].astype(float)
+    if measure not in t.columns or "sync_frame" not in t.columns:
+        return None
+    if "member" not in t.columns:
+        t = t.assign(member=0)
+    return t.set_index(["member", "sync_frame"])[measure].astype(float)
 
 
 def summarize(table: pd.DataFrame, ref_dir, every, horizon, before_cut, resolution_scale,
@@ -264,7 +287,8 @@ def summarize(table: pd.DataFrame, ref_dir, every, horizon, before_cut, resoluti
             "faces_mean": nan_or(table["faces_mean"].to_numpy(float)),
             "windows": int(len(table)), "windows_diverged": int(table["diverged"].sum()),
             "every": int(every), "horizon": int(horizon), "before_cut": int(before_cut),
-            "reference": str(Path(ref_dir).resolve()), "resolution_scale": float(resolution_scale),
+            "reference": str(_members(ref_dir)[0].resolve()), "members": len(_members(ref_dir)),
+            "resolution_scale": float(resolution_scale),
             "restart": restart,
             "sync_error_h0_px_mean": nan_or(h0[np.isfinite(h0)]),
             **_by_h(table.attrs.get("per_frame")),
@@ -307,8 +331,9 @@ def check_options(every: int, horizon: int, before_cut: int, resolution_scale: f
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m experiments.sync", description=__doc__.split("\n")[0])
     ap.add_argument("runs", nargs="+", metavar="RUN_DIR", help="run folders to evaluate (their config.yaml)")
-    ap.add_argument("--reference", required=True, metavar="REF_DIR",
-                    help="the reference run (states with restart data)")
+    ap.add_argument("--reference", required=True, metavar="REF_DIR", nargs="+",
+                    help="the reference run (states with restart data); several: the members of an ensemble, "
+                         "member 0 first, every window restarted from each")
     ap.add_argument("--every", type=int, default=EVERY, help="frames between sync frames")
     ap.add_argument("--horizon", type=int, default=HORIZON, help="frames simulated from each sync frame (H)")
     ap.add_argument("--before-cut", type=int, default=BEFORE_CUT, help="a sync frame this many frames before each cut")
@@ -321,8 +346,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     try:
         check_options(args.every, args.horizon, args.before_cut, args.resolution_scale)
-        for d in args.runs:  # every run checked before any work
-            plan(Path(d), Path(args.reference), args.every, args.horizon, args.before_cut, args.restart, args.per_frame)
+        for d in args.runs:  # every run checked against every member before any work
+            for m in args.reference:
+                plan(Path(d), Path(m), args.every, args.horizon, args.before_cut, args.restart, args.per_frame)
     except (AccuracyError, ConfigError) as exc:
         print(f"sync error: {exc}", file=sys.stderr)
         return 2
