@@ -406,6 +406,7 @@ def test_sync_restarts_every_window_from_each_member_and_pairs_them_member_by_me
         assert table[["member", "sync_frame"]].values.tolist() == [[0, 0], [0, 2], [1, 0], [1, 2]]
         s = json.loads((d / "sync.json").read_text())
         assert s["windows"] == 4 and s["members"] == 2
+        assert table["shot"].tolist() == [0] * 4 and list(s["sync_error_px_by_shot"]) == ["0"]  # camera without cuts
     # the reference's configuration restarted from either member's state continues as that member
     assert pd.read_parquet(runs["ref"] / "sync.parquet")["sync_error_px"].max() < SELF_RESTART_PX
     # two runs pair window by window within each member
@@ -413,3 +414,12 @@ def test_sync_restarts_every_window_from_each_member_and_pairs_them_member_by_me
     assert list(a.index) == [(0, 0), (0, 2), (1, 0), (1, 2)]
     lo, hi = paired_difference_interval(a, b)
     assert 0 < lo <= hi
+
+
+def test_windows_are_grouped_by_the_shot_they_end_in():
+    from experiments.analysis.sync import _by_shot
+
+    t = pd.DataFrame({"shot": [0, 0, 1, 2], "sync_error_px": [1.0, 3.0, 5.0, np.nan],
+                      "sync_error_mm": [2.0, 2.0, 1.0, 4.0]})
+    assert _by_shot(t) == {"sync_error_px_by_shot": {0: 2.0, 1: 5.0, 2: None},
+                           "sync_error_mm_by_shot": {0: 2.0, 1: 1.0, 2: 4.0}}

@@ -223,7 +223,7 @@ def _ref_list(ref_dir) -> list[Path]:
     return refs
 
 
-def _shot(path, t: float) -> int:
+def shot_index(path, t: float) -> int:
     """Index of the shot of a camera path at time t (the number of cuts at or before it)."""
     return sum(1 for c in getattr(path, "cuts", ()) if c <= t + TIME_TOL_S)
 
@@ -295,7 +295,7 @@ def evaluate_runs(run_dirs, ref_dir, resolution_scale: float = 1.0) -> list[pd.D
                 floor[camera] = float(np.median(pairs)) if pairs else math.nan
                 ref_stats[camera] = [visible.frame_statistics(img, m) for img, m in zip(ref_img[camera], members)]
             run_img = render_state(camera, run, resolution_scale)
-            shot = _shot(paths[i], members[0]["time"])
+            shot = shot_index(paths[i], members[0]["time"])
             stats = visible.frame_statistics(run_img, run)
             seen[i].append((shot, stats, ref_stats[camera]))
             if len(recent[i]) == 2:

@@ -35,7 +35,7 @@ at every sync frame and every window's end. Writes into each RUN_DIR:
 * ``sync.parquet``: one row per window: member (with several ``--reference`` folders, the
   members of an ensemble: every window is restarted from each member's state and compared with
   that member's continuation, so the windows multiply and pair member by member), sync_frame,
-  frame (its end), before_cut (a window
+  frame (its end), shot (the camera path's shot at its end: 0, 1, ... after each cut), before_cut (a window
   ending just after a cut's lead), sync_error_px, sync_error_p90_px, sync_error_mm,
   sync_error_p90_mm, sync_error_px1080 (cloth.eval.correspondence), sync_samples,
   sync_error_h0_px and sync_error_h0_mm (at the window's start, right after the restart), faces_mean
@@ -45,7 +45,8 @@ at every sync frame and every window's end. Writes into each RUN_DIR:
   bootstrap interval over the windows (scipy.stats.bootstrap) (``<measure>_lo`` / ``_hi``,
   BOOTSTRAP resamples, seeded) and ``<measure>_cut_mean`` (windows before a cut); ``sim_s_mean``,
   ``faces_mean``, ``windows``, ``every``, ``horizon``, ``before_cut``, ``reference``,
-  ``resolution_scale``, ``restart``, ``sync_error_h0_px_mean`` and ``definition``;
+  ``resolution_scale``, ``restart``, ``sync_error_h0_px_mean``, ``sync_error_px_by_shot`` and
+  ``sync_error_mm_by_shot`` (the mean of the windows that end in each shot) and ``definition``;
 * with ``--per-frame``, also ``sync_frames.parquet``: one row per frame of every window
   (sync_frame, h = 1 ... H, frame, the error measures against the reference's state of that
   frame, faces, sim_s), so that how the error grows within a window is seen, not only its value
@@ -74,14 +75,14 @@ from cloth.eval.screenspace import render_state
 from cloth.io.manifest import write_json_atomic, write_parquet_atomic
 from cloth.io.states import StateError, load_state, require_restart
 from cloth.simulation import SimulationDiverged
-from experiments.analysis.accuracy import BOOTSTRAP, AccuracyError, check_configs, state_files
+from experiments.analysis.accuracy import BOOTSTRAP, AccuracyError, check_configs, shot_index, state_files
 from experiments.analysis.accuracy import bootstrap_mean_interval as bootstrap_interval  # over windows here
 from experiments.build import ConfigError, build_simulation, camera_path, crowd_size
 
 EVERY, HORIZON, BEFORE_CUT = 10, 8, 5  # frames: the issue's defaults
 RESTARTS = ("reference_mesh", "own_mesh")  # on which mesh a remeshing mode restarts (module docstring)
 RESOLUTION_SCALE = 0.5  # rendered image / camera image: samples every 2 camera pixels (distances stay in camera px)
-COLUMNS = ("member", "sync_frame", "frame", "before_cut", *ERROR_KEYS, "sync_samples",
+COLUMNS = ("member", "sync_frame", "frame", "shot", "before_cut", *ERROR_KEYS, "sync_samples",
            "sync_error_h0_px", "sync_error_h0_mm", "faces_mean", "sim_s", "diverged")
 # the summaries' measures: the camera's pixels, millimetres on the cloth, pixels of a 1080p image
 MEASURES = ("sync_error_px", "sync_error_mm", "sync_error_px1080")
@@ -210,7 +211,8 @@ def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, b
                                            **{m: e[m] for m in MEASURES}, "faces": rec["faces"], "sim_s": rec["sim_s"]})
             except SimulationDiverged:
                 diverged = True
-            row = {"member": k, "sync_frame": s, "frame": s + horizon, "before_cut": cut,
+            row = {"member": k, "sync_frame": s, "frame": s + horizon,
+                   "shot": shot_index(path, (s + horizon) * sim.scene.frame_time), "before_cut": cut,
                    "faces_mean": float(np.mean(faces or [0])), "sim_s": sim_s / max(len(faces), 1),
                    "diverged": diverged, "sync_error_h0_px": h0["sync_error_px"],
                    "sync_error_h0_mm": h0["sync_error_mm"],
@@ -291,8 +293,20 @@ def summarize(table: pd.DataFrame, ref_dir, every, horizon, before_cut, resoluti
             "resolution_scale": float(resolution_scale),
             "restart": restart,
             "sync_error_h0_px_mean": nan_or(h0[np.isfinite(h0)]),
-            **_by_h(table.attrs.get("per_frame")),
+            **_by_h(table.attrs.get("per_frame")), **_by_shot(table),
             "definition": definition()}
+
+
+def _by_shot(table: pd.DataFrame) -> dict:
+    """sync_error_px_by_shot and sync_error_mm_by_shot: the mean over the windows that end in each
+    shot of the camera path (a close-up and a wide shot put a millimetre on different pixels)."""
+    if "shot" not in table.columns or table.empty:
+        return {}
+    out = {}
+    for measure in ("sync_error_px", "sync_error_mm"):
+        by = table.groupby("shot")[measure].mean()
+        out[f"{measure}_by_shot"] = {int(k): (None if math.isnan(v) else float(v)) for k, v in by.items()}
+    return out
 
 
 def _by_h(per_frame: pd.DataFrame | None) -> dict:
