@@ -143,6 +143,15 @@ def _other_units(r, measure: str) -> dict:
             "error_hi_mm": get("sync_error_mm_hi"), "error_px1080": get("sync_error_px1080_mean")}
 
 
+def _window_cost(r, measure: str) -> dict:
+    """The re-synchronised windows' own cost: window_time_s (simulation time per frame), window_faces
+    and windows (their number); NaN for the whole-run measure or an older evaluation."""
+    sync = measure == "sync_error_px"
+    get = lambda key: float(getattr(r, key, np.nan)) if sync else np.nan  # noqa: E731
+    return {"window_time_s": get("sync_sim_s_mean"), "window_faces": get("sync_faces_mean"),
+            "windows": get("sync_windows")}
+
+
 # The equivalence margin for "equal quality": two errors within 5 mm on the cloth count as the same
 # quality. 5 mm is a tenth of the small scale's finest edge (the dancer's size_min, 5 cm), so a
 # difference below it is far inside one element of any mesh the study judges; it is also about
@@ -202,7 +211,9 @@ def pareto_table(runs: pd.DataFrame) -> pd.DataFrame:
     """One row per run with accuracy (never a reference): scene, scale, mode, variant, run, time_mean_s,
     error (the measure: sync_error_px or error_px), error_px (its mean), error_lo_px / error_hi_px
     (its 90 % interval; NaN for error_px), error_mm / error_lo_mm / error_hi_mm and error_px1080
-    (the re-synchronised error in mm on the cloth and in 1080p pixels), faces_mean, speedup (against
+    (the re-synchronised error in mm on the cloth and in 1080p pixels), faces_mean, window_time_s,
+    window_faces and windows (the re-synchronised windows' own simulation time per frame and faces,
+    and their number; NaN for the whole-run measure), speedup (against
     the adaptive run of the scene in the same study and seed: a study's runs share a commit and a
     machine; NaN when that study has none), on_front, equal_quality (the coarsest fixed mesh whose
     error is not told apart as worse than adaptive's: :func:`equal_quality_fixed`),
@@ -229,6 +240,7 @@ def pareto_table(runs: pd.DataFrame) -> pd.DataFrame:
                          "error_lo_px": float(lo.iloc[i]) if lo is not None else np.nan,
                          "error_hi_px": float(hi.iloc[i]) if hi is not None else np.nan,
                          **_other_units(r, measure), "faces_mean": r.faces_mean,
+                         **_window_cost(r, measure),
                          "speedup": base["time_mean_s"] / r.time_mean_s if base is not None else np.nan,
                          "on_front": bool(on), "equal_quality": r.run == baseline,
                          "reference_error_px": own, "reference_floor_px": floor,

@@ -94,7 +94,8 @@ def test_pareto_table_uses_the_resynchronised_error_and_its_interval(tmp_path):
                                                           "sync_error_px_hi": hi, "windows": 15, "horizon": 8,
                                                           "sync_error_mm_mean": 2 * e, "sync_error_mm_lo": 2 * lo,
                                                           "sync_error_mm_hi": 2 * hi,
-                                                          "sync_error_px1080_mean": 1.5 * e})
+                                                          "sync_error_px1080_mean": 1.5 * e,
+                                                          "sim_s_mean": 3 * t, "faces_mean": 40.0})
     runs = load_runs([tmp_path]).runs
     assert runs["sync_windows"].tolist() == [15, 15, 15] and runs["sync_horizon"].tolist() == [8, 8, 8]
     t = pareto_table(runs).set_index("mode")
@@ -102,6 +103,8 @@ def test_pareto_table_uses_the_resynchronised_error_and_its_interval(tmp_path):
     assert t.loc["adaptive", "error_px"] == 2.0 and t.loc["adaptive", "error_lo_px"] == 1.8
     units = ["error_mm", "error_lo_mm", "error_hi_mm", "error_px1080"]
     assert t.loc["adaptive", units].tolist() == pytest.approx([4.0, 3.6, 4.4, 3.0])
+    # each point's cost in its windows, beside the free run's
+    assert t.loc["adaptive", ["window_time_s", "window_faces", "windows"]].tolist() == pytest.approx([6.0, 40.0, 15])
     # viewdep is faster than adaptive but its error is not told apart from nonadaptive's, which is faster still
     assert t["on_front"].to_dict() == {"nonadaptive": True, "viewdep": False, "adaptive": True}
     assert t.loc["viewdep", "speedup"] == pytest.approx(2.0 / 1.5)
