@@ -1,7 +1,7 @@
 """The main job: the accuracy/time Pareto figure, the paper's Table 1 and Fig. 8, and both ablations.
 
     python -m experiments.paper [--scale small|paper] [--jobs N] [--out results/paper/<timestamp>]
-                                [--studies accuracy table1 ...] [--frames N] [--repeats 3]
+                                [--studies accuracy table1 ... | --full] [--frames N] [--repeats 3]
                                 [--crowd-repeats 1]
 
 The default studies, in this order: ``accuracy`` (the Pareto study: the fixed mesh at four
@@ -10,7 +10,9 @@ reference ensemble of five seeds), ``table1`` (its non-adaptive row is the fixed
 study found of adaptive's quality: the coarsest whose re-synchronised error is not told apart as
 worse than adaptive's; the preset's own fixed mesh when the accuracy study is not run or finds
 none), ``ablation_buckling`` (the drape test) and ``ablation_buckling_dancer`` (the standing dancer).
-Others on request (``--studies``), among them ``crowd_scaling`` (beyond the paper: adaptive and
+``--full`` adds what the default job leaves out to fit in about 90 minutes on 2 cores: the
+anticipation ablation (five seeds) and the sweeps of nu_out, k, T and the margin. Others on
+request (``--studies``), among them ``crowd_scaling`` (beyond the paper: adaptive and
 view-dependent crowds of 1, 10 and 100 dancers; hours at scale=small, see docs/studies.md).
 
 Runs each study as a Hydra multirun (``python -m experiments.run experiment=<study>``, joblib
@@ -49,6 +51,10 @@ ROOT = Path(__file__).resolve().parents[1]
 STUDIES = ("accuracy", "table1", "ablation_buckling", "ablation_buckling_dancer", "ablation_anticipation",
            "sweep_nu_out", "sweep_k", "sweep_T", "sweep_margin", "sweep_resolution", "crowd_scaling")
 DEFAULT_STUDIES = ("accuracy", "table1", "ablation_buckling", "ablation_buckling_dancer")
+# --full: the default studies and what the 90-minute job leaves out to fit, the anticipation ablation
+# and the four sweeps of the view-dependent method's parameters (crowd_scaling and the resolution
+# sweep stay on request: hours, and the accuracy study already sweeps the fixed mesh)
+FULL_STUDIES = (*DEFAULT_STUDIES, "ablation_anticipation", "sweep_nu_out", "sweep_k", "sweep_T", "sweep_margin")
 WARMUP = [sys.executable, "-m", "experiments.run", "scene=karate", "+point=viewdep", "scale=small", "frames=2",
           "output.rerun=false", "output.progress=false"]
 
@@ -139,8 +145,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                     help="runs at once (local processes; default 1: timed runs do not compete; with N, each run "
                          "gets cores // N numba threads)")
     ap.add_argument("--out", type=Path, default=None, help="default results/paper/<timestamp>")
-    ap.add_argument("--studies", nargs="+", default=list(DEFAULT_STUDIES), metavar="STUDY",
+    ap.add_argument("--studies", nargs="+", default=None, metavar="STUDY",
                     help=f"any of {', '.join(STUDIES)} (default: {' '.join(DEFAULT_STUDIES)})")
+    ap.add_argument("--full", action="store_true",
+                    help=f"the default studies and what the default job leaves out to fit in about 90 minutes: "
+                         f"{' '.join(s for s in FULL_STUDIES if s not in DEFAULT_STUDIES)}")
     ap.add_argument("--frames", type=int, default=None, help="frames per run (default: each scene's own)")
     ap.add_argument("--repeats", type=int, default=3, help="table1: runs per cell of karate and solo_dancer (seeds)")
     ap.add_argument("--crowd-repeats", type=int, default=1,
@@ -150,6 +159,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                          "README's headline table (python -m paper_figures --docs)")
     ap.add_argument("overrides", nargs="*", help="extra Hydra overrides for every run (e.g. crowd_jobs=1)")
     args = ap.parse_args(argv)
+    if args.full and args.studies is not None:
+        ap.error("--full and --studies: give one (--full is the studies "
+                 f"{' '.join(FULL_STUDIES)})")
+    args.studies = list(FULL_STUDIES if args.full else args.studies or DEFAULT_STUDIES)
     bad = [s for s in args.studies if s not in STUDIES]
     if bad:
         ap.error(f"unknown study {bad[0]!r}; known: {', '.join(STUDIES)}")

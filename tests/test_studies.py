@@ -332,6 +332,11 @@ def test_table1_baseline_is_the_accuracy_study_s_equal_quality_mesh(tmp_path):
 
     args = paper.parse_args(["--out", str(tmp_path)])
     assert args.studies[:2] == ["accuracy", "table1"]
+    full = paper.parse_args(["--full"]).studies  # the default job and the sweeps and anticipation it leaves out
+    assert full[:4] == args.studies and {"sweep_nu_out", "sweep_k", "sweep_T", "sweep_margin",
+                                         "ablation_anticipation"} <= set(full)
+    with pytest.raises(SystemExit):
+        paper.parse_args(["--full", "--studies", "table1"])
     logs = []
     assert paper.equal_quality_point(tmp_path, logs.append) == "nonadaptive" and "missing" in logs[-1]
     fig = tmp_path / "accuracy" / "figures"
