@@ -185,6 +185,49 @@ def headline_table(figures_dir) -> str | None:
     return "\n".join(rows)
 
 
+def _cost_phrase(r, against=None) -> str:
+    """'28.4 mm (90 %: 22.1-35.0) on the cloth, 21.3 px at 1080p, in 0.367 s per frame' of a Pareto
+    row, and how many times faster or slower than the row `against`."""
+    text = (f"{r['error_mm']:.1f} mm (90 %: {r['error_lo_mm']:.1f}-{r['error_hi_mm']:.1f}) on the cloth, "
+            f"{r['error_px1080']:.1f} px at 1080p, in {r['time_mean_s']:.3f} s per frame")
+    if against is not None and r["time_mean_s"] > 0:
+        ratio = against["time_mean_s"] / r["time_mean_s"]
+        text += f" ({ratio:.2f}x adaptive's speed)"
+    return text
+
+
+def headline_accuracy(figures_dir) -> str | None:
+    """One sentence per scene and scale of figures_dir/pareto.csv with the re-synchronised error in
+    millimetres: what adaptive, the view-dependent mode and the fixed mesh of adaptive's quality
+    cost in time and give in accuracy, with their intervals; None without such rows."""
+    src = Path(figures_dir) / "pareto.csv"
+    if not src.is_file():
+        return None
+    t = pd.read_csv(src, keep_default_na=False, na_values=[""])
+    if not {"error", "error_mm", "error_lo_mm", "error_hi_mm", "error_px1080"} <= set(t.columns):
+        return None
+    t = t[(t["error"] == "sync_error_px") & t["error_mm"].notna()]
+    out = []
+    for (scene, scale), g in t.groupby(["scene", "scale"], sort=True):
+        ad = g[(g["mode"] == "adaptive") & g["variant"].isin(["adaptive", ""])]
+        if ad.empty:
+            continue
+        a = ad.iloc[0]
+        parts = [f"adaptive {_cost_phrase(a)}"]
+        vd = g[(g["mode"] == "viewdep") & (g["variant"] == "viewdep")]
+        if len(vd):
+            parts.append(f"the view-dependent mode {_cost_phrase(vd.iloc[0], a)}")
+        eq = g[g["equal_quality"].astype(str).str.lower() == "true"] if "equal_quality" in g.columns else g.iloc[:0]
+        if len(eq):
+            f = eq.iloc[0]
+            parts.append(f"the fixed mesh of adaptive's quality ({f['variant']}) {_cost_phrase(f, a)}")
+        windows = a.get("windows")
+        n = f", {int(windows)} windows" if windows is not None and pd.notna(windows) else ""
+        out.append(f"**What accuracy costs in time** ({scene}, {scale}; the re-synchronised error{n}): "
+                   + "; ".join(parts) + ".")
+    return "\n\n".join(out) or None
+
+
 def update_readme(readme, figures_dir, runs: pd.DataFrame, docs_dir, command: str | None,
                   page_command: str, log=print) -> bool:
     """Replace the README's block between README_BEGIN and README_END by the headline table and
@@ -202,7 +245,8 @@ def update_readme(readme, figures_dir, runs: pd.DataFrame, docs_dir, command: st
         link = Path(docs_dir).resolve().relative_to(readme.resolve().parent).as_posix()
     except ValueError:
         link = str(docs_dir)
-    block = "\n\n".join([README_BEGIN, table, stamp(runs, command, page_command),
+    accuracy = headline_accuracy(figures_dir)
+    block = "\n\n".join([README_BEGIN, table, *([accuracy] if accuracy else []), stamp(runs, command, page_command),
                          f"The whole table, Fig. 8 and the other measurements: [{link}/]({link}/index.md).",
                          README_END])
     start, end = text.index(README_BEGIN), text.index(README_END) + len(README_END)

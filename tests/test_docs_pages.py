@@ -3,6 +3,7 @@ written from the figures of a results root (run folders made by the tests)."""
 
 from __future__ import annotations
 
+import pandas as pd
 import pytest
 from helpers import write_study_runs
 
@@ -98,3 +99,22 @@ def test_the_index_says_how_the_runs_went_steps_rejected_and_runs_left_out(tmp_p
     # only the new run records step control: 3 steps in 1 run of 1
     assert "step control rejected 3 step(s), in 1 of the 1 runs that record it" in index, index
     assert "Left out (1)" in index and "8_diverged" in index
+
+
+def test_the_readme_says_what_accuracy_costs_in_time_from_the_pareto_table(tmp_path):
+    from paper_figures.docs import headline_accuracy
+
+    cols = {"scene": "solo_dancer", "scale": "small", "error": "sync_error_px", "windows": 40}
+    rows = [("adaptive", "adaptive", 0.4, 28.0, 22.0, 34.0, 20.0, False),
+            ("viewdep", "viewdep", 0.2, 80.0, 60.0, 100.0, 55.0, False),
+            ("nonadaptive", "fixed x1.4", 0.8, 17.0, 14.0, 20.0, 12.0, True)]
+    pd.DataFrame([{**cols, "mode": m, "variant": v, "time_mean_s": t, "error_mm": e, "error_lo_mm": lo,
+                   "error_hi_mm": hi, "error_px1080": px, "equal_quality": q}
+                  for m, v, t, e, lo, hi, px, q in rows]).to_csv(tmp_path / "pareto.csv", index=False)
+    text = headline_accuracy(tmp_path)
+    assert "(solo_dancer, small; the re-synchronised error, 40 windows)" in text
+    assert "adaptive 28.0 mm (90 %: 22.0-34.0) on the cloth, 20.0 px at 1080p, in 0.400 s per frame" in text
+    assert "the view-dependent mode 80.0 mm (90 %: 60.0-100.0) on the cloth" in text
+    assert "(2.00x adaptive's speed)" in text
+    assert "the fixed mesh of adaptive's quality (fixed x1.4) 17.0 mm" in text and "(0.50x adaptive's speed)" in text
+    assert headline_accuracy(tmp_path / "none") is None
