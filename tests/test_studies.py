@@ -86,19 +86,22 @@ def test_experiment_name_and_the_older_plus_form_are_one_multirun(experiment):
     assert OmegaConf.to_container(plus) == OmegaConf.to_container(compose_config(f"experiment={experiment}"))
 
 
-def test_accuracy_study_has_a_reference_ensemble_and_the_anticipation_sweep():
+def test_accuracy_study_has_a_reference_ensemble_and_its_checks_and_the_anticipation_ablation_its_cut():
     """The main job's accuracy study: a reference ensemble of five members (the issue's "at least
-    5 seeds"), the fixed mesh at four resolutions, and the anticipation window swept (the
-    anticipation ablation across the cut within its 70 frames)."""
+    5 seeds"), the reference's two checks (twice as fine, half the time step), the fixed mesh at
+    four resolutions; the anticipation window is swept by the anticipation ablation, on its cut
+    into coarse cloth, over five seeds."""
     cfgs = [compose_config(*run) for run in _runs("accuracy")]
-    refs = [c for c in cfgs if c.reference]
+    refs = [c for c in cfgs if c.reference and c.reference_check is None]
     assert sorted(c.reference_member for c in refs) == [0, 1, 2, 3, 4]
+    assert sorted(c.reference_check for c in cfgs if c.reference_check is not None) == ["fine", "half_dt"]
     assert len({c.resolution_factor for c in cfgs if c.mode.name == "nonadaptive" and not c.reference}) >= 4
-    default = compose_config("+point=viewdep").mode.view
-    leads = {(c.mode.view.anticipation, c.mode.view.anticipation_frames) for c in cfgs if c.mode.name == "viewdep"
-             and c.mode.view.nu_out == default.nu_out and c.mode.view.l_min_px == default.l_min_px}
-    assert leads == {(False, 5.0), (True, 0.0), (True, 2.0), (True, 5.0), (True, 10.0)}
     assert all(c.frames == 70 for c in cfgs)
+    cfgs = [compose_config(*run) for run in _runs("ablation_anticipation")]
+    leads = {(c.mode.view.anticipation, c.mode.view.anticipation_frames) for c in cfgs if c.mode.name == "viewdep"}
+    assert leads == {(False, 5.0), (True, 0.0), (True, 2.0), (True, 5.0), (True, 10.0)}
+    assert {c.camera.name for c in cfgs} == {"dancer_cut_to_hem"}
+    assert compose_config("+experiment=ablation_anticipation").repeats == 5  # seeds 0-4 (the sweeper's seed axis)
 
 
 @pytest.mark.parametrize("experiment", EXPERIMENTS)
@@ -119,9 +122,9 @@ def test_a_preset_that_measures_accuracy_against_a_reference_saves_states(experi
 
 @pytest.mark.parametrize("experiment", EXPERIMENTS)
 def test_repeats_sweep_the_seeds_one_run_at_a_time(experiment):
-    """`repeats=N` makes the sweeper run every point with seeds 0 .. N-1 (3 for Table 1, 1 for
-    the others by default), and the local launcher runs one run at a time."""
-    default = 3 if experiment == "table1" else 1
+    """`repeats=N` makes the sweeper run every point with seeds 0 .. N-1 (3 for Table 1, 5 for the
+    anticipation ablation, 1 for the others by default), and the local launcher runs one run at a time."""
+    default = {"table1": 3, "ablation_anticipation": 5}.get(experiment, 1)
     for extra, n in (((), default), (("repeats=5",), 5)):
         cfg = compose_config(f"+experiment={experiment}", *extra, return_hydra_config=True)
         assert cfg.repeats == n and cfg.hydra.sweeper.params.seed == f"range(0,{n})"
@@ -149,9 +152,9 @@ def test_every_point_of_every_preset_validates(experiment):
             assert cfg.study == experiment
             assert cfg.variant, f"{overrides}: every point names its variant"
             point = overrides[-1].split("=", 1)[1]
-            if point != "reference" and not point.startswith("member/"):
+            if point != "reference" and not point.startswith(("member/", "reference_check/")):
                 assert not cfg.reference
-            else:  # the reference and the members of its ensemble
+            else:  # the reference, the members of its ensemble and its checks
                 assert cfg.reference and cfg.mode.name == "nonadaptive"
             key = (cfg.scene.name, point, scale)
             if scale == "paper" or key in seen:  # building paper-scale meshes is slow; small checks every key
