@@ -149,7 +149,7 @@ MODE_KEYS = {"nonadaptive": {"name", "buckling"},
 TOP_LEVEL_KEYS = frozenset({"camera", "scene", "mode", "material", "solver", "output", "frames", "seed", "repeats",
                             "scale", "resolution_factor", "crowd_jobs", "crowd_backend", "max_speed", "study",
                             "reference", "reference_member", "reference_check", "variant", "drape_mesh", "points",
-                            "baseline"})
+                            "baseline", "baseline_factor"})
 # The keys of a scene (conf/scene/*.yaml): the others are refused.
 SCENE_KEYS = frozenset({"name", "effects", "frames", "params", "scales", "view"})
 # output.* (conf/output/default.yaml): what each is, checked before any run.

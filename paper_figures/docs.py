@@ -41,11 +41,12 @@ PAGES = {
                [("table1", ["fig8_*"])]),
     "pareto": ("What accuracy costs in time", "Error against a fine reference beside simulation time per frame "
                "for every run of the accuracy study, and which runs are on the Pareto front.",
-               [("pareto", ["pareto"]), ("equivalence", [])]),
+               [("pareto", ["pareto"]), ("equivalence", []), ("equal_quality", [])]),
     "ablations": ("Ablations", "Buckling compensation on the drape test and on the standing dancer, and the "
                   "anticipation of camera cuts (the paper's Figs. 6 and 3).",
                   [("ablation_drape", ["ablation_drape"]), ("ablation_buckling_dancer", ["ablation_buckling_dancer"]),
-                   ("ablation_buckling", ["ablation_buckling"]), ("ablation_anticipation", ["ablation_anticipation"])]),
+                   ("ablation_buckling", ["ablation_buckling"]), ("ablation_anticipation", ["ablation_anticipation"]),
+                   ("ablation_anticipation_seeds", [])]),
     "sweeps": ("Parameter sweeps", "Speed-up against adaptive and error against each swept parameter of the "
                "view-dependent sizing (nu_out, k, T, the margin).", [("sweeps", ["sweep_*"])]),
     "crowd_scaling": ("Crowd scaling", "The view-dependent speed-up against the size of the crowd.",

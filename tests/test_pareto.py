@@ -148,8 +148,15 @@ def test_equal_quality_by_equivalence_is_the_coarsest_fixed_mesh_within_the_marg
     # a tighter margin than x1's difference: only x2 is equivalent, and x1 (hi 3 > 2) brackets it
     best = equivalent_resolution(equivalence_table(runs, margin_mm=2.0), margin_mm=2.0)
     assert best["variant"] == "fixed x2" and best["interpolated_factor"] == pytest.approx(2 ** (1 / 4))
-    # a margin nothing meets
-    assert equivalent_resolution(equivalence_table(runs, margin_mm=0.5), margin_mm=0.5) is None
+    # a margin inside which no mesh is equivalent: x2 (1 mm better) is still not worse, and x1 (hi 3 > 0.5)
+    # brackets it: the factor where hi reaches 0.5 mm, (3 - 0.5) / (3 + 1) of the way from x1 to x2
+    t = equivalence_table(runs, margin_mm=0.5)
+    assert not t["equivalent"].any() and t["not_worse"].tolist() == [False, False, True]
+    best = equivalent_resolution(t, margin_mm=0.5)
+    assert best["variant"] == "fixed x2" and best["interpolated_factor"] == pytest.approx(2 ** 0.625)
+    # none qualifies when every fixed mesh is worse by more than the margin
+    worse = runs[runs["variant"] != "fixed x2"]
+    assert equivalent_resolution(equivalence_table(worse, margin_mm=2.0), margin_mm=2.0) is None
 
 
 def test_equivalence_needs_millimetre_windows(tmp_path):
@@ -174,7 +181,10 @@ def test_the_pareto_figure_writes_the_equivalence_table(tmp_path):
     make(load_runs([tmp_path / "runs"]), tmp_path / "fig", log=logs.append)
     eq = pd.read_csv(tmp_path / "fig" / "equivalence.csv")
     assert eq[["scene", "variant", "equivalent"]].values.tolist() == [["solo_dancer", "fixed x1", True]]
-    assert any("equal quality by equivalence: fixed x1 (x1 as run)" in line for line in logs)
+    assert any("equal quality (not worse than adaptive by more than 5 mm): fixed x1 (x1 as run)" in line
+               for line in logs), logs
+    chosen = pd.read_csv(tmp_path / "fig" / "equal_quality.csv")  # what the main job's Table 1 takes
+    assert chosen[["scene", "variant", "interpolated_factor"]].values.tolist() == [["solo_dancer", "fixed x1", 1.0]]
 
 
 def test_the_anticipation_table_over_seeds_pairs_each_window_with_the_same_seeds_run_without():

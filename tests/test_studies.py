@@ -365,6 +365,30 @@ def test_table1_baseline_is_the_accuracy_study_s_equal_quality_mesh(tmp_path):
     assert paper.equal_quality_point(tmp_path, logs.append) == "nonadaptive"  # the preset's own mesh
 
 
+def test_table1_baseline_at_the_interpolated_factor_of_the_millimetre_windows(tmp_path):
+    """With the accuracy study's equal_quality.csv, Table 1's non-adaptive row is the fixed mesh at
+    its interpolated factor (conf/point/fixed_factor), in both parts of the job."""
+    from experiments import paper
+    from experiments.build import build_simulation
+
+    fig = tmp_path / "accuracy" / "figures"
+    fig.mkdir(parents=True)
+    pd.DataFrame({"scene": ["solo_dancer"], "scale": ["small"], "run": ["4_x1.4"], "variant": ["fixed x1.4"],
+                  "resolution_factor": [1.4], "faces_mean": [4787.0], "interpolated_factor": [1.2345],
+                  "bracketed": [True]}).to_csv(fig / "equal_quality.csv", index=False)
+    logs = []
+    assert paper.equal_quality_baseline(tmp_path, logs.append) == ["baseline=fixed_factor", "baseline_factor=1.23"]
+    assert "x1.23" in logs[-1] and "fixed x1.4" in logs[-1]
+    args = paper.parse_args(["--out", str(tmp_path)])
+    for folder, extra in paper.study_parts("table1", args, tmp_path):
+        assert "baseline_factor=1.23" in extra and any(a.startswith("points='fixed_factor,") for a in extra), folder
+    cfg = compose_config("scene=solo_dancer", "+point=fixed_factor", "baseline_factor=1.23")
+    assert cfg.mode.name == "nonadaptive" and cfg.resolution_factor == 1.23 and cfg.variant == "fixed x1.23"
+    sim, _ = build_simulation(cfg)
+    base, _ = build_simulation(compose_config("scene=solo_dancer", "mode=nonadaptive"))
+    assert sim.mesh.n_faces > base.mesh.n_faces  # round(31 x 1.23) = 38 segments against 31
+
+
 def test_a_preset_runs_as_a_multirun_and_its_callback_aggregates(tmp_path):
     """An experiment preset end to end (2 frames): `experiment=NAME` alone is a multirun
     (conf/experiment/_base.yaml), its points run through the default launcher, the study callback
