@@ -314,6 +314,38 @@ def test_the_pop_filter_s_inexact_newton_solves_end_where_exact_ones_do(monkeypa
         assert inexact["energy_after_j"] == pytest.approx(exact["energy_after_j"], rel=POP_INEXACT_REL)
 
 
+def test_the_pop_filter_never_throws_the_cloth_where_the_old_forces_are_huge(monkeypatch):
+    """Old-mesh forces far beyond the cloth's (as where cloth was caught between body parts) put
+    the filter's minimum metres away, past every node's edges: the filter then keeps the remesh's
+    positions and says so; with the real forces it relaxes as before."""
+    import cloth.remeshing.adaptive as adaptive_mod
+    import cloth.remeshing.popfilter as popfilter_mod
+
+    calls = []
+
+    def capture(mesh, terms, changed, target, params, solver):
+        calls.append(copy.deepcopy((mesh, terms, changed, target, params, solver)))
+        return popfilter_mod.pop_filter(mesh, terms, changed, target, params, solver)
+
+    sim = build_sim(ADAPTIVE, "scene=sheet_on_sphere")
+    monkeypatch.setattr(adaptive_mod, "pop_filter", capture)
+    while not calls:
+        sim.advance_frame()
+    mesh, terms, changed, target, params, solver = copy.deepcopy(calls[0])
+    relaxed = popfilter_mod.pop_filter(mesh, terms, changed, target, params, solver)
+    assert relaxed["reverted"] == 0 and relaxed["energy_after_j"] < relaxed["energy_before_j"]
+    assert not np.array_equal(mesh.node_x, calls[0][0].node_x)  # it moved the nodes
+    mesh, terms, changed, target, params, solver = copy.deepcopy(calls[0])
+    x_remeshed = mesh.node_x.copy()
+    thrown = target + OLD_FORCE_N * np.array([0.0, 0.0, 1.0])  # every node pulled up by the old mesh
+    out = popfilter_mod.pop_filter(mesh, terms, changed, thrown, params, solver)
+    assert out["reverted"] == 1 and out["energy_after_j"] == out["energy_before_j"]
+    assert np.array_equal(mesh.node_x, x_remeshed)
+
+
+OLD_FORCE_N = 1e4  # N per node: the order the karate skirt's stretched region carried into its pop filter
+
+
 # A leg (a vertical capsule, 4 cm radius, 20 cm long) through the middle of one edge of a coarse
 # sheet (0.3 m cells): the remesh's split of that edge puts a node on the leg's axis, 4 cm deep.
 LEG_RADIUS = 0.04

@@ -25,7 +25,9 @@ REMESH_RECORD = {"remeshed": 0, "remesh_splits": 0, "remesh_collapses": 0, "reme
                  # inside since: cloth.remeshing.adaptive.mark_passing)
                  "remesh_nodes_passing": 0,
                  "pop_energy_before_j": float("nan"), "pop_energy_after_j": float("nan"),
-                 "pop_iterations": 0, "remesh_ccd_hits": 0, "remesh_guard_rounds": 0, "remesh_frozen_nodes": 0,
+                 "pop_iterations": 0,
+                 "pop_reverted": 0,  # pop filter rounds whose minimum lay past a node's edges: left as remeshed
+                 "remesh_ccd_hits": 0, "remesh_guard_rounds": 0, "remesh_frozen_nodes": 0,
                  "remesh_guard_refused": 0,  # guard redos dropped: they made a face below the quality floor
                  # the sizing field at its bounds (cloth.remeshing.sizing.sizing_at_bounds)
                  "faces_sized": 0, "faces_at_size_min": 0, "faces_at_size_max": 0, "edge_at_size_min_m": float("nan")}

@@ -340,7 +340,8 @@ class AdaptiveRemesher:
                     changed = faces_near(new.face_nodes, moved, POP_PUSH_RINGS)
             stats.update(pop_energy_before_j=rounds[0]["energy_before_j"],
                          pop_energy_after_j=rounds[-1]["energy_after_j"],
-                         pop_iterations=sum(r["iterations"] for r in rounds))
+                         pop_iterations=sum(r["iterations"] for r in rounds),
+                         pop_reverted=sum(r["reverted"] for r in rounds))
         if sim.self_collision is not None:
             stats["remesh_ccd_hits"] = collision_free_motion(sim, x_topo)
         timings["remesh"] += time.perf_counter() - t1
