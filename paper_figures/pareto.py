@@ -328,6 +328,8 @@ def _equivalence(runs: pd.DataFrame, log=print) -> tuple[pd.DataFrame, pd.DataFr
     if runs.empty or not {"scene", "scale"} <= set(runs.columns):
         return pd.DataFrame(), pd.DataFrame()
     pts = runs[~runs["reference"].astype(bool)] if "reference" in runs else runs
+    if "sync_error_px_mean" in pts.columns:  # the runs with windows (another study's adaptive run has none)
+        pts = pts[pts["sync_error_px_mean"].notna()]
     parts, chosen = [], []
     for (scene, scale), g in pts.groupby(["scene", "scale"], sort=True):
         t = equivalence_table(g)

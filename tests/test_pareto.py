@@ -201,3 +201,17 @@ def test_the_anticipation_table_over_seeds_pairs_each_window_with_the_same_seeds
     lo, hi = t.loc["T=5", ["cut_vs_off_lo_px", "cut_vs_off_hi_px"]]
     assert lo <= t.loc["T=5", "cut_vs_off_px"] <= hi
     assert np.isnan(t.loc["off", "cut_vs_off_px"])
+
+
+def test_the_equivalence_table_takes_the_adaptive_run_with_windows_not_another_studys(tmp_path):
+    from paper_figures.pareto import make
+
+    frames = list(range(0, 40, 5))
+    base = np.linspace(10.0, 40.0, len(frames))
+    _mm_runs(tmp_path / "runs", (("adaptive", "adaptive", None, 2000, base),
+                                 ("nonadaptive", "fixed x1", 1.0, 2500, base + 1.0)), frames)
+    # Table 1's adaptive run of the same scene, later and without windows
+    write_run(tmp_path / "runs" / "t1_ad", "solo_dancer", "adaptive", [2000] * 4, [1000] * 4, [1.0] * 4,
+              study="table1", variant="adaptive")
+    make(load_runs([tmp_path / "runs"]), tmp_path / "fig", log=lambda *_: None)
+    assert pd.read_csv(tmp_path / "fig" / "equivalence.csv")["equivalent"].tolist() == [True]
