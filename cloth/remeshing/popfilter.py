@@ -39,9 +39,11 @@ NEWTON_SOLVE_TOLERANCE = 1e-4
 
 
 # The farthest the filter may move a node, in lengths of the node's shortest edge: a relaxation that
-# moves a node past its neighbours is no longer a small correction but a pop of its own, and the
-# filter then leaves the remesh's positions as they are.
-POP_MAX_MOVE = 1.0
+# moves a node several edges past its neighbours is no longer a small correction but a pop of its
+# own, and the filter then leaves the remesh's positions as they are. The throw it catches moved a
+# node about 40 edges; a bound of 1 edge also caught big-step relaxations of layered sheets
+# (experiments.stability's one_frame_step, seed 1), which then left a crossing.
+POP_MAX_MOVE = 5.0
 
 
 def _shortest_edges(mesh: Mesh, nodes: np.ndarray) -> np.ndarray:
