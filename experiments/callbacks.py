@@ -98,7 +98,8 @@ def measure_accuracy(sweep_dir: Path, log=print, sync: dict | None = None) -> in
                 log(f"sync: {n} members asked, {len(members)} completed; the windows restart from those")
             starts = members[:n] if n > 1 else ref  # every window from each of the first n members' states
             for run in ([ref] if sync.get("reference", True) else []) + targets:
-                log(f"sync: {run.name} restarted from {ref.name if n == 1 else f'{len(starts)} members'}'s states")
+                source = f"{ref.name}'s states" if n == 1 else f"{len(starts)} members' states"
+                log(f"sync: {run.name} restarted from {source}")
                 try:
                     table = evaluate_sync(run, starts, **opts, log=log)
                 except AccuracyError as exc:  # e.g. a run too short for a window: the others go on
