@@ -289,9 +289,9 @@ def test_push_strain_is_the_largest_push_over_the_shortest_edge_at_its_node():
     assert push_strain(mesh, d, moved) == pytest.approx(0.005 / 0.125, rel=1e-12)
 
 
-def test_the_pop_filter_s_inexact_newton_solves_end_where_exact_ones_do(monkeypatch):
-    """The pop filter solves its Newton systems by PCG to NEWTON_SOLVE_TOLERANCE (1e-4): on the
-    remeshes of a sheet landing on the sphere, it ends at the energy that near-exact solves reach."""
+def _pop_filter_calls(monkeypatch, n: int) -> list:
+    """The arguments (deep copies) of the first `n` pop filter calls of a sheet landing on the
+    sphere in mode=adaptive."""
     import cloth.remeshing.adaptive as adaptive_mod
     import cloth.remeshing.popfilter as popfilter_mod
 
@@ -303,9 +303,17 @@ def test_the_pop_filter_s_inexact_newton_solves_end_where_exact_ones_do(monkeypa
 
     sim = build_sim(ADAPTIVE, "scene=sheet_on_sphere")
     monkeypatch.setattr(adaptive_mod, "pop_filter", capture)
-    while len(calls) < 3:
+    while len(calls) < n:
         sim.advance_frame()
-    for args in calls:
+    return calls
+
+
+def test_the_pop_filter_s_inexact_newton_solves_end_where_exact_ones_do(monkeypatch):
+    """The pop filter solves its Newton systems by PCG to NEWTON_SOLVE_TOLERANCE (1e-4): on the
+    remeshes of a sheet landing on the sphere, it ends at the energy that near-exact solves reach."""
+    import cloth.remeshing.popfilter as popfilter_mod
+
+    for args in _pop_filter_calls(monkeypatch, 3):
         inexact = popfilter_mod.pop_filter(*copy.deepcopy(args))
         with monkeypatch.context() as m:
             m.setattr(popfilter_mod, "NEWTON_SOLVE_TOLERANCE", 1e-12)
@@ -318,19 +326,9 @@ def test_the_pop_filter_never_throws_the_cloth_where_the_old_forces_are_huge(mon
     """Old-mesh forces far beyond the cloth's (as where cloth was caught between body parts) put
     the filter's minimum metres away, past every node's edges: the filter then keeps the remesh's
     positions and says so; with the real forces it relaxes as before."""
-    import cloth.remeshing.adaptive as adaptive_mod
     import cloth.remeshing.popfilter as popfilter_mod
 
-    calls = []
-
-    def capture(mesh, terms, changed, target, params, solver):
-        calls.append(copy.deepcopy((mesh, terms, changed, target, params, solver)))
-        return popfilter_mod.pop_filter(mesh, terms, changed, target, params, solver)
-
-    sim = build_sim(ADAPTIVE, "scene=sheet_on_sphere")
-    monkeypatch.setattr(adaptive_mod, "pop_filter", capture)
-    while not calls:
-        sim.advance_frame()
+    calls = _pop_filter_calls(monkeypatch, 1)
     mesh, terms, changed, target, params, solver = copy.deepcopy(calls[0])
     relaxed = popfilter_mod.pop_filter(mesh, terms, changed, target, params, solver)
     assert relaxed["reverted"] == 0 and relaxed["energy_after_j"] < relaxed["energy_before_j"]
