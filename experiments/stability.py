@@ -11,7 +11,8 @@ runs every case for seeds 0 .. N-1 (the scene's jitter; the larger versions with
 table.md (default out: results/stability; one row per case and seed: the checks and the figures
 behind them, and what step control rejected) and cases.md (one row per case: seeds passed). It
 exits 1 unless every run passed. `--report` writes the tables with the commit to a Markdown page
-and the runs beside it (.csv); `--resume` takes such a table and runs only what it lacks, so that
+and the runs beside it (.csv); `--resume` takes such a table and runs only what it lacks (its
+runs of other cases are kept in the new tables as they were), so that
 the paper-scale suite (hours) can run over several sittings. A run in progress is checkpointed
 (<out>/checkpoints/<scale>_<case>_seed<k>_<frames>f, at most CHECKPOINT_WALL_S apart): a suite
 started again with the same --out continues a killed run from its last checkpoint (the row's
@@ -283,6 +284,9 @@ def main(argv=None) -> None:
     names = args.cases or (CASE_NAMES if args.long else SHORT_CASE_NAMES)
     frames_of = {n: args.frames or (case(n).frames_small if args.scale == "small" else PAPER_FRAMES) for n in names}
     done = resumed_rows(args.resume, args.scale, frames_of, args.seeds) if args.resume is not None else {}
+    # the resumed table's runs of cases this suite does not run (another --cases): carried into its
+    # tables and report as they were, so that a suite run case by case over sittings loses none
+    others = other_rows(args.resume, names) if args.resume is not None else []
     out = args.out / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     out.mkdir(parents=True, exist_ok=True)
     code = code_version()
@@ -306,12 +310,12 @@ def main(argv=None) -> None:
                 r = rows[-1]
                 print(f"{name:20s} seed {seed}  ok={r['ok']}  steps rejected {r['steps_rejected']}  {r['error']}",
                       flush=True)
-            table = pd.DataFrame(rows)  # written after every run: a killed run keeps what it had
+            table = pd.DataFrame(others + rows)  # written after every run: a killed run keeps what it had
             write_text_atomic(out / "table.csv", table.to_csv(index=False))
             write_text_atomic(out / "table.md", markdown(table.drop(columns=["what"])))
             write_text_atomic(out / "cases.md", header + markdown(case_table(table)))
             if args.report is not None:
-                write_text_atomic(args.report, report(header, table, len(names) * args.seeds))
+                write_text_atomic(args.report, report(header, table, len(others) + len(names) * args.seeds))
                 write_text_atomic(args.report.with_suffix(".csv"), table.to_csv(index=False))
     print(table.drop(columns=["what"]).to_string(index=False))
     print()
@@ -319,6 +323,16 @@ def main(argv=None) -> None:
     print(f"\nresults in {out}")
     if not table["ok"].all():
         raise SystemExit(1)
+
+
+def other_rows(path: Path, names) -> list[dict]:
+    """The rows of an earlier suite's table (read by :func:`resumed_rows` first) whose case is not
+    among `names`, in their order."""
+    old = pd.read_csv(path, keep_default_na=False)
+    rows = [r for r in old.to_dict("records") if r["case"] not in set(names)]
+    for r in rows:
+        r["ok"] = str(r["ok"]) == "True"
+    return rows
 
 
 def resumed_rows(path: Path, scale: str, frames_of: dict, seeds: int) -> dict:

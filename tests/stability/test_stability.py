@@ -100,6 +100,13 @@ def test_resume_keeps_the_runs_an_earlier_suite_finished(tmp_path, monkeypatch):
     assert calls == [("crushed_sheet", 1), ("one_frame_step", 0), ("one_frame_step", 1)]  # seed 0 kept
     table = pd.read_csv(second.with_suffix(".csv"))
     assert len(table) == 4 and table["ok"].all()
+    calls.clear()  # a suite of another case resumed from it keeps the earlier cases' runs in its report
+    third = tmp_path / "third.md"
+    stability.main(["--scale", "small", "--cases", "crushed_sheet", "--seeds", "2",
+                    "--out", str(tmp_path / "d"), "--report", str(third), "--resume", str(second.with_suffix(".csv"))])
+    assert calls == []  # both seeds of crushed_sheet were there
+    kept = pd.read_csv(third.with_suffix(".csv"))
+    assert sorted(zip(kept["case"], kept["seed"])) == sorted(zip(table["case"], table["seed"]))
     calls.clear()  # another scale (or frame count) is another suite: nothing is kept
     stability.main(["--scale", "small", "--frames", "3", "--cases", "crushed_sheet", "--seeds", "1",
                     "--out", str(tmp_path / "c"), "--resume", str(second.with_suffix(".csv"))])
