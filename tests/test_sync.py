@@ -293,6 +293,14 @@ def sync_runs(tmp_path_factory):
     return base
 
 
+def _copies(sync_runs, tmp_path, *names) -> dict:
+    """{name: a copy of the fixture's run folder in tmp_path}: sync writes into the runs it measures."""
+    runs = {name: tmp_path / name for name in names}
+    for name, d in runs.items():
+        shutil.copytree(sync_runs / name, d)
+    return runs
+
+
 def test_sync_frames_include_the_lead_of_each_cut():
     from experiments.analysis.sync import sync_frames
 
@@ -330,9 +338,7 @@ def test_sync_restarts_a_remeshing_mode_on_its_own_mesh_and_records_the_error_at
     from experiments.analysis.sync import main
 
     ref = sync_runs / "ref"
-    runs = {name: tmp_path / name for name in ("ref", "adaptive")}
-    for name, d in runs.items():
-        shutil.copytree(sync_runs / name, d)
+    runs = _copies(sync_runs, tmp_path, "ref", "adaptive")
     assert main([*map(str, runs.values()), "--reference", str(ref), "--every", "2", "--horizon", "2",
                  "--resolution-scale", "0.25", "--restart", "own_mesh"]) == 0
     for d in runs.values():
@@ -370,9 +376,7 @@ def test_sync_per_frame_records_every_frame_of_every_window_and_the_reference_is
     from experiments.analysis.sync import FRAME_COLUMNS, main
 
     ref = sync_runs / "ref"
-    runs = {name: tmp_path / name for name in ("ref", "adaptive")}
-    for name, d in runs.items():
-        shutil.copytree(sync_runs / name, d)
+    runs = _copies(sync_runs, tmp_path, "ref", "adaptive")
     assert main([*map(str, runs.values()), "--reference", str(ref), "--every", "2", "--horizon", "2",
                  "--resolution-scale", "0.25", "--restart", "own_mesh", "--per-frame"]) == 0
     for d in runs.values():
@@ -396,9 +400,7 @@ def test_sync_restarts_every_window_from_each_member_and_pairs_them_member_by_me
     member = tmp_path / "member"  # the reference's configuration with another seed: another trajectory
     run_config(member, *TINY, "mode=nonadaptive", "scene.scales.small.resolution=10", "seed=1")
     ref = sync_runs / "ref"
-    runs = {name: tmp_path / name for name in ("ref", "fixed")}
-    for name, d in runs.items():
-        shutil.copytree(sync_runs / name, d)
+    runs = _copies(sync_runs, tmp_path, "ref", "fixed")
     assert main([*map(str, runs.values()), "--reference", str(ref), str(member), "--every", "2", "--horizon", "2",
                  "--resolution-scale", "0.25"]) == 0
     for d in runs.values():
