@@ -139,26 +139,34 @@ def test_long_adaptive_runs_stay_finite_and_outside_obstacles(scene, overrides):
     assert sim.mesh.n_faces > 0
 
 
-def test_crossing_guard_redoes_a_remesh_that_makes_the_cloth_cross_itself():
-    """Two wavy sheets 1 mm apart; the upper one is held (a handle: never collapsed), the lower
-    one is coarsened. Its collapses cut the troughs' corners, through the upper sheet: the plain
-    remesh crosses; the guard redoes it with the crossings' nodes frozen and leaves none, while
-    the lower sheet still coarsens where that crosses nothing."""
+def _wavy_sheets(fine_below_x: float | None = None):
+    """Two wavy 0.4 m sheets (16 x 16 cells) 1 mm apart; the upper one held (a handle: never
+    collapsed). The sizing asks for 0.2 m edges (the lower sheet coarsens), or 1 cm where
+    x < `fine_below_x` (it refines there). Returns (mesh, vert_M, data, handle)."""
     from cloth.core.mesh import grid_mesh, merge_meshes
-    from cloth.remeshing.adaptive import AdaptiveRemesher
-    from cloth.remeshing.remesh import remesh
 
     sheets = [grid_mesh(0.4, 0.4, 16, 16) for _ in range(2)]
     for m, dz in zip(sheets, (0.0, 0.001)):
         m.node_x[:, 2] = 0.005 * np.sin(2 * np.pi * m.node_x[:, 0] / 0.2) + dz
     mesh = merge_meshes(sheets)
     mesh.update_rest_data(0.12)
-    n_lower = sheets[0].n_nodes
     vert_M = np.tile(np.eye(2) / 0.2 ** 2, (mesh.n_verts, 1, 1))
+    if fine_below_x is not None:
+        vert_M[mesh.vert_u[:, 0] < fine_below_x] = np.eye(2) / 0.01 ** 2
     data = np.hstack([mesh.node_x, mesh.node_v])
     handle = np.full(mesh.n_nodes, -1)
-    handle[n_lower:] = 0
+    handle[sheets[0].n_nodes:] = 0
+    return mesh, vert_M, data, handle
 
+
+def test_crossing_guard_redoes_a_remesh_that_makes_the_cloth_cross_itself():
+    """The lower of two wavy sheets is coarsened. Its collapses cut the troughs' corners, through
+    the upper sheet: the plain remesh crosses; the guard redoes it with the crossings' nodes
+    frozen and leaves none, while the lower sheet still coarsens where that crosses nothing."""
+    from cloth.remeshing.adaptive import AdaptiveRemesher
+    from cloth.remeshing.remesh import remesh
+
+    mesh, vert_M, data, handle = _wavy_sheets()
     assert count_crossings(mesh) == 0
     plain = remesh(mesh, vert_M, data, handle)
     assert count_crossings(plain.mesh) > 0
@@ -167,27 +175,38 @@ def test_crossing_guard_redoes_a_remesh_that_makes_the_cloth_cross_itself():
     assert count_crossings(guarded.mesh) == 0
     assert stats["remesh_guard_rounds"] >= 1 and stats["remesh_frozen_nodes"] > 0
     assert guarded.collapses > 0 and guarded.mesh.n_faces < mesh.n_faces
+    assert "remesh_guard_fallback" not in stats
 
 
-def test_crossing_guard_drops_a_redo_that_makes_a_sliver(monkeypatch):
+def test_crossing_guard_falls_back_to_splits_alone_when_its_rounds_still_cross(monkeypatch):
+    """With no redo round allowed, a remesh that crosses falls back to splits alone (every node
+    frozen): the lower sheet refines where it is asked to (x < 0.1 m) and nothing collapses or
+    flips, so nothing crosses."""
+    import cloth.remeshing.adaptive as adaptive
+    from cloth.remeshing.remesh import remesh
+
+    mesh, vert_M, data, handle = _wavy_sheets(fine_below_x=0.1)
+    plain = remesh(mesh, vert_M, data, handle)
+    assert count_crossings(plain.mesh) > 0 and plain.splits > 0 and plain.collapses > 0
+    monkeypatch.setattr(adaptive, "CROSSING_GUARD_ROUNDS", 0)
+    stats = {}
+    got = adaptive.AdaptiveRemesher()._avoid_crossings(mesh, vert_M, data, handle, plain, stats)
+    assert stats["remesh_guard_fallback"] == 1
+    assert count_crossings(got.mesh) == 0
+    assert got.splits > 0 and got.collapses == 0 and got.flips == 0 and got.mesh.n_faces > mesh.n_faces
+
+
+def test_crossing_guard_keeps_the_mesh_when_every_redo_makes_a_sliver(monkeypatch):
     """Frozen nodes block the flips that repair a split's thin faces; a redo whose worst face falls
-    below the quality floor (aspect_min / 3, or the plain remesh's worst if lower) is dropped, and
-    the plain remesh is kept with its crossings, for the untangling."""
+    below the quality floor (aspect_min / 3, or the plain remesh's worst if lower) is dropped. When
+    the splits-alone fallback makes a sliver too, the frame keeps the mesh it had (no remesh):
+    neither a crossing for the untangling nor a sliver for the solver."""
     from types import SimpleNamespace
 
     import cloth.remeshing.adaptive as adaptive
-    from cloth.core.mesh import grid_mesh, merge_meshes
     from cloth.remeshing.remesh import remesh
 
-    sheets = [grid_mesh(0.4, 0.4, 16, 16) for _ in range(2)]  # the crossing case above
-    for m, dz in zip(sheets, (0.0, 0.001)):
-        m.node_x[:, 2] = 0.005 * np.sin(2 * np.pi * m.node_x[:, 0] / 0.2) + dz
-    mesh = merge_meshes(sheets)
-    mesh.update_rest_data(0.12)
-    vert_M = np.tile(np.eye(2) / 0.2 ** 2, (mesh.n_verts, 1, 1))
-    data = np.hstack([mesh.node_x, mesh.node_v])
-    handle = np.full(mesh.n_nodes, -1)
-    handle[sheets[0].n_nodes:] = 0
+    mesh, vert_M, data, handle = _wavy_sheets()  # the crossing case above
     plain = remesh(mesh, vert_M, data, handle)
     floor = min(adaptive.RemeshParams().aspect_min / 3, plain.mesh.face_quality().min())
     redos = []
@@ -199,9 +218,10 @@ def test_crossing_guard_drops_a_redo_that_makes_a_sliver(monkeypatch):
     monkeypatch.setattr(adaptive, "remesh", sliver_redo)
     stats = {}
     kept = adaptive.AdaptiveRemesher()._avoid_crossings(mesh, vert_M, data, handle, plain, stats)
-    assert len(redos) == 1 and redos[0] > 0
-    assert kept is plain and count_crossings(kept.mesh) > 0
-    assert stats["remesh_guard_refused"] == 1 and "remesh_guard_rounds" not in stats
+    assert len(redos) == 2 and 0 < redos[0] < mesh.n_nodes and redos[1] == mesh.n_nodes
+    assert kept.mesh is mesh and not kept.changed and count_crossings(kept.mesh) == 0
+    assert stats["remesh_guard_refused"] == 1 and stats["remesh_guard_fallback"] == 2
+    assert "remesh_guard_rounds" not in stats
 
 
 # Energy left by the pop filter after refining coarse cloth draped on the sphere (J, seeds 0-5):

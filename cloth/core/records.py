@@ -29,6 +29,8 @@ REMESH_RECORD = {"remeshed": 0, "remesh_splits": 0, "remesh_collapses": 0, "reme
                  "pop_reverted": 0,  # pop filter rounds whose minimum lay past a node's edges: left as remeshed
                  "remesh_ccd_hits": 0, "remesh_guard_rounds": 0, "remesh_frozen_nodes": 0,
                  "remesh_guard_refused": 0,  # guard redos dropped: they made a face below the quality floor
+                 # the guard's redos all crossed: 1, splits alone; 2, no remesh (cloth.remeshing.adaptive)
+                 "remesh_guard_fallback": 0,
                  # the sizing field at its bounds (cloth.remeshing.sizing.sizing_at_bounds)
                  "faces_sized": 0, "faces_at_size_min": 0, "faces_at_size_max": 0, "edge_at_size_min_m": float("nan")}
 
