@@ -9,7 +9,7 @@ import pytest
 
 from cloth.core.mesh import Mesh, grid_mesh
 from cloth.remeshing.kernels.collapses import try_collapse
-from cloth.remeshing.kernels.flips import flip, flip_all
+from cloth.remeshing.kernels.flips import flip, flip_all, flip_slivers
 from cloth.remeshing.kernels.halfedge import RING_MAX, retwin
 from cloth.remeshing.kernels.splits import split
 from cloth.remeshing.remesh import RemeshParams, RemeshWork, remesh
@@ -402,3 +402,24 @@ def test_a_flip_that_improves_faces_below_aspect_min_is_taken():
     # isotropic metric: c-d is the Delaunay diagonal; both before (0.129) and after (0.426) are below
     # 0.5, but the flip makes the worst face better, so it is taken
     assert _flips(_quad("ab"), np.eye(2), aspect_min=0.5) == 1
+
+
+def _sliver_flips(mesh, metric, aspect_min):
+    w = RemeshWork(mesh, np.tile(metric, (mesh.n_verts, 1, 1)), node_data(mesh), free(mesh))
+    n = flip_slivers(w.fv, w.fadj, w.ftw, w.falive, w.vu, w.vM, w.vface, w.vnode, w.nd, np.inf, w.cnt, w.fdirty,
+                     RemeshParams().flip_threshold, -1, aspect_min)
+    check_work(w)
+    return n, w
+
+
+def test_the_last_flip_pass_starts_from_the_slivers_only():
+    """After the collapses, Lawson flipping restarts from the sides of faces below aspect_min: the
+    long-diagonal quad (aspect 0.129) is flipped to the short diagonal (0.426) when its faces count as
+    slivers (aspect_min 0.2), and not touched when they do not (aspect_min 0.1), though the metric
+    would flip it: only slivers start the pass."""
+    n, w = _sliver_flips(_quad("ab"), np.eye(2), aspect_min=0.2)
+    assert n == 1
+    faces = {tuple(sorted(w.fv[f])) for f in range(w.cnt[0]) if w.falive[f]}
+    assert faces == {(0, 2, 3), (1, 2, 3)}  # the short diagonal c-d
+    assert _sliver_flips(_quad("ab"), np.eye(2), aspect_min=0.1)[0] == 0
+    assert _flips(_quad("ab"), np.eye(2), aspect_min=0.1) == 1  # the full pass would flip it

@@ -46,7 +46,7 @@ import numpy as np
 
 from cloth.core.mesh import Mesh
 from cloth.remeshing.kernels.collapses import collapse_pass
-from cloth.remeshing.kernels.flips import flip_all
+from cloth.remeshing.kernels.flips import flip_all, flip_slivers
 from cloth.remeshing.kernels.splits import OUT_OF_CAPACITY, split_pass
 
 
@@ -233,6 +233,8 @@ def remesh(mesh: Mesh, vert_M: np.ndarray, node_data: np.ndarray, node_handle: n
                                   params.collapse_max_size, math.cos(params.corner_angle), thr,
                                   params.max_collapse_rounds, w.nd, ms, fz)
     flips += fl
+    flips += flip_slivers(w.fv, w.fadj, w.ftw, w.falive, w.vu, w.vM, w.vface, w.vnode, w.nd, ms, w.cnt, w.fdirty, thr,
+                          fz, am)
     out, nd, nh, origin, vM = w.to_mesh(mesh.density)
     nd = nd[:, :n_data]
     return RemeshResult(mesh=out, node_data=nd, node_handle=nh, node_origin=origin, vert_M=vM, splits=int(splits),
