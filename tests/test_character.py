@@ -130,3 +130,21 @@ def test_a_phase_delays_the_motion_and_runs_are_deterministic(motion):
         Mannequin(motion, phase=-0.1)
     with pytest.raises(ValueError, match="unknown motion"):
         make_motion("waltz")
+
+
+def test_a_mannequin_posed_again_at_a_time_it_kept_is_posed_exactly_as_anew():
+    """set_time keeps the last POSED_CACHE times' capsules: asking again for a kept time (a frame's
+    ends, asked for by its steps, remesh and view), or for a time dropped from the cache, gives
+    exactly the capsules a fresh mannequin gets, and changing the capsules does not change the kept ones."""
+    from cloth.scenes.character import POSED_CACHE
+
+    cached = Mannequin(Karate(), position=(0.5, 0.2, 0.0), heading=0.3, phase=0.1)
+    times = [0.2 + 0.005 * k for k in range(POSED_CACHE + 5)]
+    for t in times + times[::-1] + [times[0], times[-1]] * 3:
+        cached.set_time(t)
+        cached.ends += 1.0  # a caller that writes into the capsules
+        cached.set_time(t)
+        fresh = Mannequin(Karate(), position=(0.5, 0.2, 0.0), heading=0.3, phase=0.1)
+        fresh.set_time(t)
+        assert np.array_equal(cached.ends, fresh.ends) and np.array_equal(cached.end_velocities, fresh.end_velocities)
+    assert len(cached._posed) == POSED_CACHE

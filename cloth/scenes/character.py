@@ -68,6 +68,9 @@ CAPSULES = {
 }
 CAPSULE_NAMES = tuple(CAPSULES)
 VELOCITY_STEP = 1e-4  # s, central difference of the forward kinematics
+# Posed times a mannequin keeps (oldest dropped first): a frame asks for its start and end times
+# six times each (steps, remesh, view) and for each substep's once; the pose is a function of time.
+POSED_CACHE = 16
 
 
 def _rot(angles) -> np.ndarray:
@@ -266,6 +269,7 @@ class Mannequin(CapsuleUnion):
         self.offset = np.asarray(position, dtype=np.float64)  # m
         self.place_heading = float(heading)  # rad about z
         self.phase = float(phase)  # s, delay of the motion's start
+        self._posed = {}  # time -> (capsule endpoints, their velocities): the last POSED_CACHE times
         ends = capsule_endpoints(Pose())
         super().__init__(ends, CAPSULE_RADII, None, name)
         self.motion = motion  # Obstacle's init set a Static motion (for rigid obstacles)
@@ -285,9 +289,16 @@ class Mannequin(CapsuleUnion):
     def set_time(self, t: float) -> None:
         if not isinstance(self.motion, Motion):  # during CapsuleUnion.__init__
             return super().set_time(t)
-        h = VELOCITY_STEP
-        ends = self.endpoints_at(t)
-        vel = (self.endpoints_at(t + h) - self.endpoints_at(t - h)) / (2 * h)
+        key = float(t)
+        posed = self.__dict__.setdefault("_posed", {})  # (a checkpoint of a version without it)
+        if key not in posed:  # a frame's boundaries are asked for several times (steps, remesh, view)
+            h = VELOCITY_STEP
+            ends = self.endpoints_at(t)
+            vel = (self.endpoints_at(t + h) - self.endpoints_at(t - h)) / (2 * h)
+            if len(posed) >= POSED_CACHE:
+                posed.pop(next(iter(posed)))
+            posed[key] = (ends, vel)
+        ends, vel = (a.copy() for a in posed[key])
         self.R, self.p = np.eye(3), np.zeros(3)
         self.omega, self.v0 = np.zeros(3), np.zeros(3)
         self.set_capsules(ends, vel)
