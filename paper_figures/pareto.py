@@ -118,6 +118,7 @@ def equal_quality_fixed(g: pd.DataFrame, measure: str, err: pd.Series, lo, hi,
     if ad.empty or fixed.empty:
         return None
     a = ad.iloc[-1]
+    fixed = same_solver(fixed, a)
     wa = read_windows(a["path"]) if measure == "sync_error_px" and "path" in g.columns else None
     for _, f in fixed.iterrows():
         wf = read_windows(f["path"]) if wa is not None else None
@@ -132,6 +133,54 @@ def equal_quality_fixed(g: pd.DataFrame, measure: str, err: pd.Series, lo, hi,
         if not worse:
             return f["run"]
     return None
+
+
+def same_solver(runs: pd.DataFrame, other) -> pd.DataFrame:
+    """The runs whose bending Hessian (solver.bending_hessian) is `other`'s: a fixed mesh is judged
+    against the adaptive run of its own solver (a table written before the column: all of them)."""
+    if "bending_hessian" not in runs.columns or "bending_hessian" not in other:
+        return runs
+    return runs[runs["bending_hessian"].fillna("projected") == (other["bending_hessian"] or "projected")]
+
+
+# A point run with another bending Hessian names it in its variant after this (conf/point/bending/):
+# "adaptive, bending gauss_newton" is compared with the study's "adaptive".
+BENDING_VARIANT = ", bending "
+
+
+def bending_hessian_table(g: pd.DataFrame) -> pd.DataFrame:
+    """Each run of `g` (one scene and scale's runs table with paths) whose variant names another
+    bending Hessian (BENDING_VARIANT) against the run of its base variant: the paired difference
+    other - base of sync_error_mm over the windows both have with its 90 % BCa interval, and both
+    runs' simulation time per frame (free runs, and their windows). not_worse: the interval does
+    not lie above 0 (the Gauss-Newton Hessian becomes the default only if so, issue 34).
+    Columns variant, base, bending_hessian, diff_mm, lo_mm, hi_mm, windows, not_worse, time_s,
+    base_time_s, speedup (base over other), window_time_s, base_window_time_s."""
+    cols = ["variant", "base", "bending_hessian", "diff_mm", "lo_mm", "hi_mm", "windows", "not_worse",
+            "time_s", "base_time_s", "speedup", "window_time_s", "base_window_time_s"]
+    rows = []
+    variants = g["variant"].fillna("")
+    for _, r in g[variants.str.contains(BENDING_VARIANT, regex=False)].iterrows():
+        base_name = r["variant"].split(BENDING_VARIANT)[0]
+        base = g[(variants == base_name) & (g["mode"] == r["mode"])]
+        if base.empty or "path" not in g.columns:
+            continue
+        b = base.iloc[-1]
+        wr, wb = read_windows(r["path"], "sync_error_mm"), read_windows(b["path"], "sync_error_mm")
+        if wr is None or wb is None:
+            continue
+        x, y = wr.align(wb, join="inner")
+        d = (x - y).to_numpy(float)
+        d = d[np.isfinite(d)]
+        lo, hi = paired_difference_interval(wr, wb)
+        get = lambda row, key: float(row.get(key, np.nan))  # noqa: E731
+        rows.append({"variant": r["variant"], "base": base_name, "bending_hessian": r.get("bending_hessian", ""),
+                     "diff_mm": float(d.mean()) if d.size else np.nan, "lo_mm": lo, "hi_mm": hi,
+                     "windows": int(d.size), "not_worse": bool(lo <= 0.0),
+                     "time_s": get(r, "time_mean_s"), "base_time_s": get(b, "time_mean_s"),
+                     "speedup": get(b, "time_mean_s") / get(r, "time_mean_s"),
+                     "window_time_s": get(r, "sync_sim_s_mean"), "base_window_time_s": get(b, "sync_sim_s_mean")})
+    return pd.DataFrame(rows, columns=cols)
 
 
 def _other_units(r, measure: str) -> dict:
@@ -170,6 +219,7 @@ def equivalence_table(g: pd.DataFrame, margin_mm: float = EQUIVALENCE_MARGIN_MM)
     Empty without an adaptive run or millimetre windows."""
     ad = g[(g["mode"] == "adaptive") & g["variant"].fillna("").isin(["", "adaptive"])]
     fixed = g[g["mode"] == "nonadaptive"].sort_values("faces_mean")
+    fixed = same_solver(fixed, ad.iloc[-1]) if len(ad) else fixed
     wa = read_windows(ad.iloc[-1]["path"], "sync_error_mm") if len(ad) and "path" in g.columns else None
     rows = []
     for _, f in fixed.iterrows() if wa is not None else ():
@@ -318,7 +368,32 @@ def make(runset: RunSet, out, paper_timings=None, log=print) -> list[Path]:
                                    f"coarsest not worse than adaptive by more than {EQUIVALENCE_MARGIN_MM:g} mm at "
                                    "90 %, its resolution factor interpolated in log where the sweep brackets the "
                                    "margin (Table 1's non-adaptive row in the main job)")
+    hessians = _per_scene(runset.runs, bending_hessian_table)
+    if len(hessians):
+        written += write_table(hessians, out, "bending_hessian", "Another bending Hessian against the study's "
+                               "(solver.bending_hessian): the paired difference of the re-synchronised error in mm "
+                               "(other - base) with its 90 % interval; not_worse = the interval does not lie above "
+                               "0; speedup = the base's simulation time per frame over the other's")
+        for r in hessians.itertuples():
+            log(f"pareto: {r.variant}: {r.diff_mm:+.3g} mm ({r.lo_mm:+.3g} to {r.hi_mm:+.3g}, {r.windows} windows) "
+                f"against {r.base}, {r.speedup:.3g}x its speed: {'not worse' if r.not_worse else 'worse'}")
     return written
+
+
+def _per_scene(runs: pd.DataFrame, table) -> pd.DataFrame:
+    """`table` of each scene and scale's points with windows (never a reference), with scene and scale
+    first; empty when none gives a row."""
+    if runs.empty or not {"scene", "scale"} <= set(runs.columns):
+        return pd.DataFrame()
+    pts = runs[~runs["reference"].astype(bool)] if "reference" in runs else runs
+    if "sync_error_px_mean" in pts.columns:
+        pts = pts[pts["sync_error_px_mean"].notna()]
+    parts = [table(g).assign(scene=scene, scale=scale) for (scene, scale), g in pts.groupby(["scene", "scale"])]
+    parts = [p for p in parts if len(p)]
+    if not parts:
+        return pd.DataFrame()
+    t = pd.concat(parts, ignore_index=True)
+    return t[["scene", "scale", *[c for c in t.columns if c not in ("scene", "scale")]]]
 
 
 def _equivalence(runs: pd.DataFrame, log=print) -> tuple[pd.DataFrame, pd.DataFrame]:
