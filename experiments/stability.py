@@ -5,6 +5,7 @@ self_collision) and no face below the quality bound.
     python -m experiments.stability [--scale paper|small] [--seeds 5] [--long] [--frames N]
                                     [--cases crushed_sheet karate_2x] [--out DIR]
                                     [--report docs/stability.md] [--resume TABLE.csv]
+                                    [--set KEY=VALUE ...]
 
 runs every case for seeds 0 .. N-1 (the scene's jitter; the larger versions with --scale paper,
 100 frames, each case's own frames at --scale small) and writes <out>/<timestamp>/table.csv and
@@ -13,8 +14,10 @@ behind them, and what step control rejected) and cases.md (one row per case: see
 exits 1 unless every run passed. `--report` writes the tables with the commit to a Markdown page
 and the runs beside it (.csv); `--resume` takes such a table and runs only what it lacks (its
 runs of other cases are kept in the new tables as they were), so that
-the paper-scale suite (hours) can run over several sittings. A run in progress is checkpointed
-(<out>/checkpoints/<scale>_<case>_seed<k>_<frames>f, at most CHECKPOINT_WALL_S apart): a suite
+the paper-scale suite (hours) can run over several sittings. `--set` adds Hydra overrides to every
+case (a solver option tried on every hard case: `--set solver.bending_hessian=gauss_newton`).
+A run in progress is checkpointed (<out>/checkpoints/<scale>_<case>_seed<k>_<frames>f, with a
+digest of the --set overrides if any, at most CHECKPOINT_WALL_S apart): a suite
 started again with the same --out continues a killed run from its last checkpoint (the row's
 resumed_at_frame and checkpoint_commit say so) unless --fresh is given; a run that ends removes
 its checkpoint. tests/stability/ runs the short cases at scale=small for two seeds.
@@ -51,6 +54,7 @@ bending fade (cloth.physics.bending: HINGE_FADE_HEIGHT).
 from __future__ import annotations
 
 import argparse
+import hashlib
 import sys
 import time
 from dataclasses import dataclass
@@ -164,9 +168,9 @@ def case(name: str) -> Case:
     raise ValueError(f"unknown stability case {name!r}; known: {CASE_NAMES}")
 
 
-def _cfg(c: Case, scale: str, seed: int = 0):
+def _cfg(c: Case, scale: str, seed: int = 0, extra=()):
     with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        cfg = compose(config_name="config", overrides=c.overrides + [f"scale={scale}", f"seed={seed}"])
+        cfg = compose(config_name="config", overrides=c.overrides + [f"scale={scale}", f"seed={seed}", *extra])
     if c.cut_every:
         shots = list(cfg.camera.shots)
         frame_time = float(cfg.scene.params.frame_time)
@@ -177,13 +181,15 @@ def _cfg(c: Case, scale: str, seed: int = 0):
     return cfg
 
 
-def checkpoint_dir(out: Path, c: Case, scale: str, seed: int, frames: int) -> Path:
-    """Where the run of case `c` with `seed` keeps its checkpoint while it runs."""
-    return Path(out) / "checkpoints" / f"{scale}_{c.name}_seed{seed}_{frames}f"
+def checkpoint_dir(out: Path, c: Case, scale: str, seed: int, frames: int, extra=()) -> Path:
+    """Where the run of case `c` with `seed` (and the --set overrides `extra`) keeps its checkpoint
+    while it runs."""
+    tag = "_" + hashlib.sha1(" ".join(extra).encode()).hexdigest()[:10] if extra else ""
+    return Path(out) / "checkpoints" / f"{scale}_{c.name}_seed{seed}_{frames}f{tag}"
 
 
 def run_case(c: Case, frames: int, scale: str = "small", seed: int = 0, checkpoints: Path | None = None,
-             checkpoint_wall_s: float = CHECKPOINT_WALL_S) -> dict:
+             checkpoint_wall_s: float = CHECKPOINT_WALL_S, extra=()) -> dict:
     """Run one case with one seed (the scene's jitter); return its checks and figures. Raises
     nothing for a bad run: a run that stops (diverged) is reported with ok = False and the error.
     Beside the checks, what step control did: the steps it rejected (of each kind) and the
@@ -191,8 +197,9 @@ def run_case(c: Case, frames: int, scale: str = "small", seed: int = 0, checkpoi
 
     With `checkpoints` (a folder), the run is checkpointed there every `checkpoint_wall_s` of wall
     time, continued from the checkpoint it finds there (the frames before it are not run again;
-    their records come from the checkpoint), and the checkpoint removed when the run ends."""
-    row = {"case": c.name, "seed": seed, "what": c.what, "frames": frames, "error": "",
+    their records come from the checkpoint), and the checkpoint removed when the run ends.
+    `extra`: Hydra overrides added to the case's (the suite's --set)."""
+    row = {"case": c.name, "seed": seed, "what": c.what, "frames": frames, "error": "", "set": " ".join(extra),
            "resumed_at_frame": 0, "checkpoint_commit": ""}
     sim, records = None, []
     if checkpoints is not None and checkpoint_path(checkpoints).is_file():
@@ -207,7 +214,7 @@ def run_case(c: Case, frames: int, scale: str = "small", seed: int = 0, checkpoi
             print(f"{c.name} seed {seed}: continued from frame {ckpt.frame} (checkpoint of commit "
                   f"{row['checkpoint_commit'][:12] or 'unknown'})", flush=True)
     if sim is None:
-        sim = build_simulation(_cfg(c, scale, seed), character=c.character)[0]
+        sim = build_simulation(_cfg(c, scale, seed, extra), character=c.character)[0]
     last_save = time.perf_counter()
     try:
         while len(records) < frames:
@@ -274,6 +281,9 @@ def main(argv=None) -> None:
     ap.add_argument("--resume", type=Path, default=None,
                     help="a table.csv (or a report's .csv) of an earlier, unfinished suite: its runs at this "
                          "scale and frame count are kept, not run again")
+    ap.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", dest="extra",
+                    help="Hydra overrides added to every case (e.g. solver.bending_hessian=gauss_newton); "
+                         "a resumed table's runs count only if they had the same")
     ap.add_argument("--fresh", action="store_true",
                     help="run every case from its first frame, ignoring checkpoints of killed runs in --out")
     args = ap.parse_args(argv)
@@ -283,7 +293,15 @@ def main(argv=None) -> None:
         ap.error(f"--frames: must be at least 1, got {args.frames}")
     names = args.cases or (CASE_NAMES if args.long else SHORT_CASE_NAMES)
     frames_of = {n: args.frames or (case(n).frames_small if args.scale == "small" else PAPER_FRAMES) for n in names}
-    done = resumed_rows(args.resume, args.scale, frames_of, args.seeds) if args.resume is not None else {}
+    bad = [o for o in args.extra if "=" not in o or o.startswith("=")]
+    if bad:
+        ap.error(f"--set: each override is KEY=VALUE, got {' '.join(bad)}")
+    for name in names:  # a bad override is refused before any run, naming it
+        try:
+            _cfg(case(name), args.scale, 0, args.extra)
+        except Exception as exc:  # noqa: BLE001 - Hydra's own message names the key
+            ap.error(f"--set: {exc}")
+    done = resumed_rows(args.resume, args.scale, frames_of, args.seeds, args.extra) if args.resume is not None else {}
     # the resumed table's runs of cases this suite does not run (another --cases): carried into its
     # tables and report as they were, so that a suite run case by case over sittings loses none
     others = other_rows(args.resume, names) if args.resume is not None else []
@@ -302,11 +320,11 @@ def main(argv=None) -> None:
                 rows.append(done[(name, seed)])
                 print(f"{name:20s} seed {seed}  kept from {args.resume}", flush=True)
             else:
-                ckpt = checkpoint_dir(args.out, c, args.scale, seed, frames_of[name])
+                ckpt = checkpoint_dir(args.out, c, args.scale, seed, frames_of[name], args.extra)
                 if args.fresh:
                     remove_checkpoint(ckpt)
-                rows.append({"scale": args.scale, **run_case(c, frames_of[name], args.scale, seed, ckpt),
-                             "commit": commit})
+                rows.append({"scale": args.scale, **run_case(c, frames_of[name], args.scale, seed, ckpt,
+                                                              extra=args.extra), "commit": commit})
                 r = rows[-1]
                 print(f"{name:20s} seed {seed}  ok={r['ok']}  steps rejected {r['steps_rejected']}  {r['error']}",
                       flush=True)
@@ -335,9 +353,10 @@ def other_rows(path: Path, names) -> list[dict]:
     return rows
 
 
-def resumed_rows(path: Path, scale: str, frames_of: dict, seeds: int) -> dict:
+def resumed_rows(path: Path, scale: str, frames_of: dict, seeds: int, extra=()) -> dict:
     """{(case, seed): row} of an earlier suite's table that this one would run the same way: its
-    scale, a case of this suite at the same frame count, a seed below `seeds`. A missing or unreadable
+    scale, a case of this suite at the same frame count, a seed below `seeds`, the same --set
+    overrides `extra` (a table from before the column: none). A missing or unreadable
     table is an error (one message naming the file), not a silent fresh start."""
     try:
         old = pd.read_csv(path, keep_default_na=False)
@@ -349,7 +368,7 @@ def resumed_rows(path: Path, scale: str, frames_of: dict, seeds: int) -> dict:
     keep = {}
     for r in old.to_dict("records"):
         if (r["scale"] == scale and r["case"] in frames_of and int(r["frames"]) == frames_of[r["case"]]
-                and 0 <= int(r["seed"]) < seeds):
+                and 0 <= int(r["seed"]) < seeds and str(r.get("set", "")) == " ".join(extra)):
             r["ok"] = str(r["ok"]) == "True"
             keep[(r["case"], int(r["seed"]))] = r
     return keep

@@ -91,6 +91,34 @@ def test_stability_tool_writes_csv_and_markdown(tmp_path):
     assert "seeds 0-1" in cases and "| one_frame_step | 2 | 2 |" in cases  # seeds run, seeds passed
 
 
+def test_stability_set_adds_overrides_to_every_case_and_keys_resumed_runs(tmp_path, monkeypatch, capsys):
+    """--set solver.bending_hessian=gauss_newton reaches every case's simulation and its rows ("set");
+    a table of runs without it is not resumed as theirs; a bad override is refused before any run."""
+    from experiments import stability
+
+    built = []
+    real = stability.build_simulation
+
+    def spy(cfg, **kw):
+        built.append(cfg.solver.bending_hessian)
+        return real(cfg, **kw)
+
+    monkeypatch.setattr(stability, "build_simulation", spy)
+    common = ["--scale", "small", "--frames", "1", "--seeds", "1", "--cases", "one_frame_step"]
+    stability.main(common + ["--out", str(tmp_path / "plain")])
+    plain = _only_child(tmp_path / "plain") / "table.csv"
+    stability.main(common + ["--out", str(tmp_path / "gn"), "--set", "solver.bending_hessian=gauss_newton",
+                             "--resume", str(plain)])
+    assert built == ["projected", "gauss_newton"]  # the plain run was not taken for the other's
+    table = pd.read_csv(_only_child(tmp_path / "gn") / "table.csv", keep_default_na=False)
+    assert table["set"].tolist() == ["solver.bending_hessian=gauss_newton"] and table["ok"].all()
+    for bad in (["solver.no_such_key=1"], ["solver.bending_hessian"]):
+        with pytest.raises(SystemExit):
+            stability.main(common + ["--out", str(tmp_path / "bad"), "--set", *bad])
+        assert "--set" in capsys.readouterr().err
+    assert len(built) == 2 and not (tmp_path / "bad").exists()
+
+
 def test_benchmark_times_a_scene_by_phase_and_collision_part(tmp_path, capsys):
     from experiments.benchmark import main
     main(["--scene", "layered_sheets", "--frames", "2", "--warmup", "1", "--out", str(tmp_path),
