@@ -135,35 +135,52 @@ def equal_quality_fixed(g: pd.DataFrame, measure: str, err: pd.Series, lo, hi,
     return None
 
 
+# How a point integrates (the solver's bending Hessian, the implicit steps per frame): a fixed mesh
+# is judged against the adaptive run that integrates as it does.
+INTEGRATION = {"bending_hessian": "projected", "steps_per_frame": math.nan}
+
+
+def _setting(v, default) -> str:
+    """An integration setting as text, a missing one (NaN, None, '') as its default."""
+    missing = v is None or v == "" or (isinstance(v, float) and math.isnan(v))
+    return str(default if missing else v)
+
+
 def same_solver(runs: pd.DataFrame, other) -> pd.DataFrame:
-    """The runs whose bending Hessian (solver.bending_hessian) is `other`'s: a fixed mesh is judged
-    against the adaptive run of its own solver (a table written before the column: all of them)."""
-    if "bending_hessian" not in runs.columns or "bending_hessian" not in other:
-        return runs
-    return runs[runs["bending_hessian"].fillna("projected") == (other["bending_hessian"] or "projected")]
+    """The runs that integrate as `other` does (INTEGRATION: bending Hessian and steps per frame;
+    a column missing from a table written before it is not compared)."""
+    keep = pd.Series(True, index=runs.index)
+    for col, default in INTEGRATION.items():
+        if col in runs.columns and col in other:
+            keep &= runs[col].map(lambda v, d=default: _setting(v, d)) == _setting(other[col], default)
+    return runs[keep]
 
 
-# A point run with another bending Hessian names it in its variant after this (conf/point/bending/):
-# "adaptive, bending gauss_newton" is compared with the study's "adaptive".
-BENDING_VARIANT = ", bending "
+# A point that integrates otherwise names it in its variant after this (conf/point/bending/,
+# conf/point/steps/): "adaptive, bending gauss_newton" and "adaptive, 4 steps" are compared with
+# the study's "adaptive".
+OPTION_SEPARATOR = ", "
 
 
-def bending_hessian_table(g: pd.DataFrame) -> pd.DataFrame:
-    """Each run of `g` (one scene and scale's runs table with paths) whose variant names another
-    bending Hessian (BENDING_VARIANT) against the run of its base variant: the paired difference
-    other - base of sync_error_mm over the windows both have with its 90 % BCa interval, and both
-    runs' simulation time per frame (free runs, and their windows). not_worse: the interval does
-    not lie above 0 (the Gauss-Newton Hessian becomes the default only if so, issue 34).
-    Columns variant, base, bending_hessian, diff_mm, lo_mm, hi_mm, windows, not_worse, time_s,
-    base_time_s, speedup (base over other), window_time_s, base_window_time_s."""
-    cols = ["variant", "base", "bending_hessian", "diff_mm", "lo_mm", "hi_mm", "windows", "not_worse",
-            "time_s", "base_time_s", "speedup", "window_time_s", "base_window_time_s"]
+def integration_table(g: pd.DataFrame) -> pd.DataFrame:
+    """Each run of `g` (one scene and scale's runs table with paths) whose variant names an
+    integration option ("<base>, <option>") against the run of its base variant and mode: the
+    paired difference other - base of sync_error_mm over the windows both have with its 90 % BCa
+    interval, and both runs' simulation time per frame (free runs, and their windows). not_worse:
+    the interval does not lie above 0 (the Gauss-Newton bending Hessian becomes the default only
+    if so, issue 34). Columns variant, base, option, bending_hessian, steps_per_frame, diff_mm,
+    lo_mm, hi_mm, windows, not_worse, time_s, base_time_s, speedup (base over other), window_time_s,
+    base_window_time_s."""
+    cols = ["variant", "base", "option", "bending_hessian", "steps_per_frame", "diff_mm", "lo_mm", "hi_mm",
+            "windows", "not_worse", "time_s", "base_time_s", "speedup", "window_time_s", "base_window_time_s"]
     rows = []
     variants = g["variant"].fillna("")
-    for _, r in g[variants.str.contains(BENDING_VARIANT, regex=False)].iterrows():
-        base_name = r["variant"].split(BENDING_VARIANT)[0]
+    if "path" not in g.columns:
+        return pd.DataFrame(rows, columns=cols)
+    for _, r in g[variants.str.contains(OPTION_SEPARATOR, regex=False)].iterrows():
+        base_name, option = r["variant"].split(OPTION_SEPARATOR, 1)
         base = g[(variants == base_name) & (g["mode"] == r["mode"])]
-        if base.empty or "path" not in g.columns:
+        if base.empty:
             continue
         b = base.iloc[-1]
         wr, wb = read_windows(r["path"], "sync_error_mm"), read_windows(b["path"], "sync_error_mm")
@@ -174,7 +191,8 @@ def bending_hessian_table(g: pd.DataFrame) -> pd.DataFrame:
         d = d[np.isfinite(d)]
         lo, hi = paired_difference_interval(wr, wb)
         get = lambda row, key: float(row.get(key, np.nan))  # noqa: E731
-        rows.append({"variant": r["variant"], "base": base_name, "bending_hessian": r.get("bending_hessian", ""),
+        rows.append({"variant": r["variant"], "base": base_name, "option": option,
+                     "bending_hessian": r.get("bending_hessian", ""), "steps_per_frame": get(r, "steps_per_frame"),
                      "diff_mm": float(d.mean()) if d.size else np.nan, "lo_mm": lo, "hi_mm": hi,
                      "windows": int(d.size), "not_worse": bool(lo <= 0.0),
                      "time_s": get(r, "time_mean_s"), "base_time_s": get(b, "time_mean_s"),
@@ -368,13 +386,14 @@ def make(runset: RunSet, out, paper_timings=None, log=print) -> list[Path]:
                                    f"coarsest not worse than adaptive by more than {EQUIVALENCE_MARGIN_MM:g} mm at "
                                    "90 %, its resolution factor interpolated in log where the sweep brackets the "
                                    "margin (Table 1's non-adaptive row in the main job)")
-    hessians = _per_scene(runset.runs, bending_hessian_table)
-    if len(hessians):
-        written += write_table(hessians, out, "bending_hessian", "Another bending Hessian against the study's "
-                               "(solver.bending_hessian): the paired difference of the re-synchronised error in mm "
-                               "(other - base) with its 90 % interval; not_worse = the interval does not lie above "
-                               "0; speedup = the base's simulation time per frame over the other's")
-        for r in hessians.itertuples():
+    options = _per_scene(runset.runs, integration_table)
+    if len(options):
+        written += write_table(options, out, "integration", "The study's points integrated otherwise (the "
+                               "bending Hessian, solver.bending_hessian; the implicit steps per frame) against the "
+                               "point they vary: the paired difference of the re-synchronised error in mm (other - "
+                               "base) with its 90 % interval; not_worse = the interval does not lie above 0; "
+                               "speedup = the base's simulation time per frame over the other's")
+        for r in options.itertuples():
             log(f"pareto: {r.variant}: {r.diff_mm:+.3g} mm ({r.lo_mm:+.3g} to {r.hi_mm:+.3g}, {r.windows} windows) "
                 f"against {r.base}, {r.speedup:.3g}x its speed: {'not worse' if r.not_worse else 'worse'}")
     return written

@@ -217,14 +217,14 @@ def test_the_equivalence_table_takes_the_adaptive_run_with_windows_not_another_s
     assert pd.read_csv(tmp_path / "fig" / "equivalence.csv")["equivalent"].tolist() == [True]
 
 
-def test_a_bending_hessian_point_is_compared_window_by_window_with_its_base_and_kept_out_of_equal_quality(tmp_path):
-    """conf/point/bending/: "adaptive, bending gauss_newton" 0.5 mm worse in every window (interval
-    [0.5, 0.5]: worse), "viewdep, bending gauss_newton" 1 mm better (not worse); the fixed mesh with
-    the other Hessian, far better than adaptive, is not the fixed mesh of adaptive's quality (a fixed
-    mesh is judged against the adaptive run of its own solver)."""
+def test_an_integration_point_is_compared_window_by_window_with_its_base_and_kept_out_of_equal_quality(tmp_path):
+    """conf/point/bending/ and steps/: "adaptive, bending gauss_newton" 0.5 mm worse in every window
+    (interval [0.5, 0.5]: worse), "viewdep, bending gauss_newton" 1 mm better (not worse); the fixed
+    meshes with the other Hessian or 16 steps, far better than adaptive, are not the fixed mesh of
+    adaptive's quality (a fixed mesh is judged against the adaptive run that integrates as it does)."""
     import yaml
 
-    from paper_figures.pareto import bending_hessian_table, equivalence_table
+    from paper_figures.pareto import equivalence_table, integration_table
 
     frames = list(range(0, 60, 5))
     base = np.linspace(10.0, 40.0, len(frames))
@@ -233,20 +233,26 @@ def test_a_bending_hessian_point_is_compared_window_by_window_with_its_base_and_
              ("viewdep", "viewdep", None, 800, base + 10.0),
              ("viewdep", "viewdep, bending gauss_newton", None, 800, base + 9.0),
              ("nonadaptive", "nonadaptive", 1.0, 2500, base + 20.0),
-             ("nonadaptive", "nonadaptive, bending gauss_newton", 1.0, 2500, base - 5.0))
+             ("nonadaptive", "nonadaptive, bending gauss_newton", 1.0, 2500, base - 5.0),
+             ("nonadaptive", "nonadaptive, 16 steps", 1.0, 2500, base - 8.0))
     _mm_runs(tmp_path, cases, frames)
     for i, (_, variant, *_rest) in enumerate(cases):
+        path = tmp_path / f"{i}" / "config.yaml"
+        cfg = yaml.safe_load(path.read_text())
         if "gauss_newton" in variant:
-            path = tmp_path / f"{i}" / "config.yaml"
-            cfg = yaml.safe_load(path.read_text())
             path.write_text(yaml.safe_dump({**cfg, "solver": {"bending_hessian": "gauss_newton"}}))
+        if "16 steps" in variant:
+            cfg["scene"].setdefault("params", {})["steps_per_frame"] = 16
+            path.write_text(yaml.safe_dump(cfg))
     runs = load_runs([tmp_path]).runs
-    assert sorted(runs["bending_hessian"]) == ["gauss_newton"] * 3 + ["projected"] * 3
-    t = bending_hessian_table(runs).set_index("variant")
+    assert sorted(runs["bending_hessian"]) == ["gauss_newton"] * 3 + ["projected"] * 4
+    assert runs.set_index("variant").loc["nonadaptive, 16 steps", "steps_per_frame"] == 16
+    t = integration_table(runs).set_index("variant")
     assert t.loc["adaptive, bending gauss_newton", ["lo_mm", "hi_mm"]].tolist() == pytest.approx([0.5, 0.5])
     assert not t.loc["adaptive, bending gauss_newton", "not_worse"]
     assert t.loc["viewdep, bending gauss_newton", "diff_mm"] == pytest.approx(-1.0)
     assert t.loc["viewdep, bending gauss_newton", "not_worse"]
     assert t.loc["nonadaptive, bending gauss_newton", ["base", "diff_mm"]].tolist() == ["nonadaptive", -25.0]
-    assert t["windows"].tolist() == [len(frames)] * 3
-    assert equivalence_table(runs)["variant"].tolist() == ["nonadaptive"]
+    assert t.loc["nonadaptive, 16 steps", ["option", "diff_mm"]].tolist() == ["16 steps", -28.0]
+    assert t["windows"].tolist() == [len(frames)] * 4
+    assert equivalence_table(runs)["variant"].tolist() == ["nonadaptive"]  # neither other integration
