@@ -46,6 +46,10 @@ Each case is a scene and mode with a few overrides:
 Both diverged in the main job before step control (cloth.stepcontrol: MAX_STEP_HALVINGS) and the
 bending fade (cloth.physics.bending: HINGE_FADE_HEIGHT).
 
+- drape_compensated: the drape test's view-coarsened specimen (conf/drape_mesh/viewdep: 1.5 cm
+  faces, all out of view) with buckling compensation at k = 10, 60 frames; before the area barrier
+  of compensated faces (cloth.physics.membrane.COLLAPSE_AREA_RATIO) a face folded to 0.3 % of its
+  area and the run diverged at frame 29;
 - crowd_dancer_no_floor: dancer 5 of the ten dancers, view-dependent without the contact floor,
   40 frames; it diverged in the main job after step control, when split nodes made inside a leg
   were pushed through it (cloth.remeshing.adaptive.mark_passing).
@@ -154,6 +158,8 @@ CASES = [
     # diverged in the main job at 54a7c68 (seed 2: 363 m/s at frame 90 after four halvings): the
     # pop filter pulled a stretched skirt region along its old forces, from 104 J to 1,369 J
     # (cloth.remeshing.popfilter: the filter never adds energy)
+    Case("drape_compensated", ["scene=cusick_drape", "+drape_mesh=viewdep", "+compensation=k10"], frames_small=60,
+         what="the drape test's view-coarsened specimen (1.5 cm faces) with eq 11 at k = 10, hanging 2.4 s"),
     Case("karate_viewdep", ["scene=karate", "+point=viewdep"], speed_bound_m_s=BODY_SPEED_M_S, frames_small=150,
          long=True, what="karate in the view-dependent mode as Table 1 runs it"),
 ]

@@ -95,6 +95,19 @@ def _plot_over_time(ax, runset, runs: pd.DataFrame, column: str, labels, ylabel:
 
 
 DRAPE_MESHES = ("fine", "coarse", "view-coarsened")
+# Settled (the measures are read at equilibrium, the last EQUILIBRIUM_FRAMES frames): over them the
+# drape coefficient moves by less than SETTLED_DRAPE_COEFFICIENT (a hundredth of its 0-1 range, a
+# tenth of the smallest difference the drape table discusses) and the hem's radius by less than
+# SETTLED_HEM_M (5 mm: under a tenth of the small scale's 5 cm edge), in every seed.
+SETTLED_DRAPE_COEFFICIENT = 0.01
+SETTLED_HEM_M = 0.005
+
+
+def _settled(g: pd.DataFrame) -> bool:
+    """Every run of `g` settled by the criterion above (False when a run has no drift recorded)."""
+    dc = g["drape_coefficient_drift"].to_numpy(float) if "drape_coefficient_drift" in g else np.array([np.nan])
+    hem = g["hem_radius_mean_m_drift"].to_numpy(float) if "hem_radius_mean_m_drift" in g else np.array([np.nan])
+    return bool(np.all(dc < SETTLED_DRAPE_COEFFICIENT) and np.all(hem < SETTLED_HEM_M))
 
 
 def _drape_runs(runset: RunSet) -> pd.DataFrame:
@@ -119,7 +132,10 @@ def drape(runset: RunSet, out) -> list[Path]:
             runs=("run", "size"), faces_mean=("faces_mean", "median"), time_mean_s=("time_mean_s", "median"),
             drape_coefficient=("drape_coefficient_final", "median"), folds=("folds_final", "median"),
             hem_radius_m=("hem_radius_mean_m_final", "median"),
-            compressive_energy_j=("compressive_energy_out_j_final", "median")).reset_index()
+            compressive_energy_j=("compressive_energy_out_j_final", "median"),
+            **({"overhang_elements": ("overhang_elements_final", "median")}
+               if "overhang_elements_final" in g else {})).reset_index()
+        med["settled"] = [_settled(s) for _, s in g.groupby(["drape_mesh", "compensation"], sort=False)]
         fine = med[(med["drape_mesh"] == "fine") & (med["compensation"] == "none")]
         dc_fine = float(fine["drape_coefficient"].iloc[0]) if len(fine) else np.nan
         for _, r in med.iterrows():
@@ -157,7 +173,10 @@ def drape(runset: RunSet, out) -> list[Path]:
     return save_figure(fig, out, "ablation_drape") + write_table(
         table, out, "ablation_drape",
         "Buckling compensation on the drape test, at equilibrium (last 10 frames; medians over seeds): "
-        "toward_fine = compensation brings the mesh's drape coefficient closer to the fine mesh's without it")
+        "toward_fine = compensation brings the mesh's drape coefficient closer to the fine mesh's without it; "
+        "overhang_elements = elements across the overhang; settled = in every seed the drape coefficient "
+        f"moved by less than {SETTLED_DRAPE_COEFFICIENT:g} and the hem by less than {SETTLED_HEM_M * 1000:g} mm "
+        "over those frames")
 
 
 def standing(runset: RunSet, out) -> list[Path]:
@@ -175,6 +194,7 @@ def standing(runset: RunSet, out) -> list[Path]:
     table = runs.groupby(["scene", "scale", "mode", "variant"], sort=False).agg(
         runs=("run", "size"), nu_out=("nu_out", "median"), faces_mean=("faces_mean", "median"),
         time_mean_s=("time_mean_s", "median"), **{v: (k, "median") for k, v in cols.items()}).reset_index()
+    table["settled"] = [_settled(s) for _, s in runs.groupby(["scene", "scale", "mode", "variant"], sort=False)]
     # the comparison: the fine reference when the study has it, else the preset's fixed mesh
     fine = table[table["variant"] == "reference"]
     fine = fine if len(fine) else table[table["mode"] == "nonadaptive"]
@@ -194,7 +214,8 @@ def standing(runset: RunSet, out) -> list[Path]:
         table, out, "ablation_buckling_dancer",
         "The standing dancer, skirt out of view: measures at equilibrium (last 10 frames; medians over seeds); "
         "hem_minus_fine_m = hem radius minus the fine reference's (the preset's fixed mesh's without one; "
-        "ballooning > 0)")
+        f"ballooning > 0); settled = in every seed the hem moved by less than {SETTLED_HEM_M * 1000:g} mm and the "
+        f"drape coefficient by less than {SETTLED_DRAPE_COEFFICIENT:g} over those frames")
 
 
 COMPENSATIONS = ("none", "uniform", "k=1", "k=3", "k=10", "k=50")

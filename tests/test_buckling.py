@@ -141,3 +141,68 @@ def test_alpha_zero_makes_pure_compression_free():
     assert abs(e) < ROUNDOFF and np.abs(g).max() < ROUNDOFF
     e1, _, _ = stvk_element(x[0:3], x[3:6], x[6:9], B, A, MU, LAM, True, 1.0)
     assert e1 > 0
+
+
+def _collapsed_cases():
+    """Random compensated faces squeezed to 2-24 % of their rest area (below COLLAPSE_AREA_RATIO),
+    tilted out of plane, away from the strain kink at 0 (|principal strains| > 0.02)."""
+    from cloth.physics.membrane import COLLAPSE_AREA_RATIO
+    rng = np.random.default_rng(5)
+    for seed in range(2000):
+        u, B, A = random_rest_triangle(seed)
+        x = np.column_stack([u, np.zeros(3)]) * [rng.uniform(0.05, 1.3), rng.uniform(0.05, 0.5), 1]
+        x = x @ np.linalg.qr(rng.standard_normal((3, 3)))[0] + 0.002 * rng.standard_normal((3, 3))
+        n = np.cross(x[1] - x[0], x[2] - x[0])
+        J = 0.5 * np.linalg.norm(n) / A
+        lam = np.linalg.eigvalsh(green_strain(deformation_gradient(x[0], x[1], x[2], B)))
+        if 0.02 < J < 0.96 * COLLAPSE_AREA_RATIO and np.all(np.abs(lam) > 0.02):
+            yield B, A, x.reshape(-1), J
+
+
+@pytest.mark.parametrize("case", range(6))
+def test_the_collapse_barrier_matches_finite_differences_and_keeps_the_projection_psd(case):
+    """A compensated face below COLLAPSE_AREA_RATIO of its area stores A kappa / 2 (J_c - J)^2 on top of
+    eq 10's energy: the exact gradient and Hessian (project=False) against central differences, the
+    projected Hessian positive semi-definite, and the energy eq 10's plus the barrier's by hand."""
+    from cloth.physics.membrane import COLLAPSE_AREA_RATIO
+    B, A, x, J = list(_collapsed_cases())[case]
+    alpha = 0.3
+
+    def elem(y, project=False):
+        return stvk_element(y[0:3], y[3:6], y[6:9], B, A, MU, LAM, project, alpha)
+
+    e, g, H = elem(x)
+    E = green_strain(deformation_gradient(x[0:3], x[3:6], x[6:9], B))
+    Eh = filter_strain(E[None], alpha)[0]
+    barrier = 0.5 * A * (2 * MU + LAM) * (COLLAPSE_AREA_RATIO - J) ** 2
+    assert barrier > 0 and np.isclose(e, A * (MU * np.sum(Eh * Eh) + 0.5 * LAM * np.trace(Eh) ** 2) + barrier,
+                                      rtol=1e-12)
+    fd_g = np.array([(elem(x + d)[0] - elem(x - d)[0]) / (2 * FD_STEP) for d in np.eye(9) * FD_STEP])
+    assert np.linalg.norm(g - fd_g) <= FD_REL_TOL * np.linalg.norm(fd_g) + ROUNDOFF
+    fd_H = np.column_stack([(elem(x + d)[1] - elem(x - d)[1]) / (2 * FD_STEP) for d in np.eye(9) * FD_STEP])
+    assert np.linalg.norm(H - fd_H) <= FD_REL_TOL * np.linalg.norm(fd_H) + ROUNDOFF
+    for project in (True, 2):  # projected and Gauss-Newton
+        Hp = elem(x, project)[2]
+        assert np.linalg.eigvalsh(Hp).min() >= -1e-10 * np.abs(Hp).max()
+
+
+def test_the_collapse_barrier_acts_only_on_compensated_faces_below_the_ratio():
+    """No barrier at alpha = 1 (plain StVK), none at or above COLLAPSE_AREA_RATIO, and its force
+    opens the face: it pushes the area up (the gradient's descent raises J)."""
+    from cloth.physics.membrane import COLLAPSE_AREA_RATIO, area_barrier_into
+    u, B, A = random_rest_triangle(2)
+    flat = np.column_stack([u, np.zeros(3)])
+    for s, expect in ((1.0, False), (np.sqrt(COLLAPSE_AREA_RATIO) * 1.001, False), (0.3, True)):
+        x = flat * [s, s, 1]
+        g, H = np.zeros(9), np.zeros((9, 9))
+        e = area_barrier_into(x[0], x[1], x[2], A, 1.0, True, g, H)
+        assert (e > 0) == expect and (np.abs(g).max() > 0) == expect
+        if expect:
+            y = x.reshape(-1) - 1e-4 * g / np.linalg.norm(g)
+            n0 = np.linalg.norm(np.cross(x[1] - x[0], x[2] - x[0]))
+            n1 = np.linalg.norm(np.cross(y[3:6] - y[0:3], y[6:9] - y[0:3]))
+            assert n1 > n0
+    x = (flat * [0.3, 0.3, 1]).reshape(-1)
+    plain = stvk_element(x[0:3], x[3:6], x[6:9], B, A, MU, LAM, False, 1.0)[0]
+    E = green_strain(deformation_gradient(x[0:3], x[3:6], x[6:9], B))
+    assert np.isclose(plain, A * (MU * np.sum(E * E) + 0.5 * LAM * np.trace(E) ** 2), rtol=1e-12)

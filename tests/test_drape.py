@@ -108,11 +108,14 @@ def test_drape_table_says_whether_compensation_moves_toward_the_fine_mesh(tmp_pa
              ("view-coarsened", "viewdep", 1.0, None, 0.85), ("view-coarsened", "viewdep", 1.0, adaptive, 0.72)]
     for i, (mesh, mode, factor, bk, dc) in enumerate(cases):
         dcs = np.r_[np.ones(n - 10), np.full(10, dc)]  # settles to dc: the last 10 frames
+        if i == 5:  # still moving: 0.03 over the last 10 frames (mean dc), above SETTLED_DRAPE_COEFFICIENT
+            dcs[-10:] = dc + np.linspace(-0.015, 0.015, 10)
         folder = write_run(tmp_path / f"{i}", "cusick_drape", mode, [100] * n, [60] * n, [0.1] * n,
                            study="ablation_buckling", variant=f"{mesh} {i}",
                            extra_frames={"drape_coefficient": dcs, "folds": np.full(n, 6),
                                          "hem_radius_mean_m": np.full(n, 0.13),
-                                         "compressive_energy_out_j": np.full(n, 1e-3)})
+                                         "compressive_energy_out_j": np.full(n, 1e-3),
+                                         "overhang_elements": np.full(n, 2.0 + i)})
         cfg = yaml.safe_load((folder / "config.yaml").read_text())
         cfg["mode"]["buckling"] = bk or None
         cfg.update(drape_mesh=mesh, resolution_factor=factor)
@@ -128,6 +131,33 @@ def test_drape_table_says_whether_compensation_moves_toward_the_fine_mesh(tmp_pa
     assert got[("coarse", "uniform")][1] is False
     assert got[("view-coarsened", "k=10")][1] is True  # 0.72 is closer to 0.70 than 0.85
     assert pd.isna(got[("fine", "none")][1]) and pd.isna(got[("coarse", "none")][1])  # nothing to compare
+    settled = {(r.drape_mesh, r.compensation): (r.settled, r.overhang_elements) for r in t.itertuples()}
+    assert settled[("view-coarsened", "k=10")] == (False, 7.0)  # the run still moving
+    assert all(v[0] for k, v in settled.items() if k != ("view-coarsened", "k=10"))
+    assert settled[("fine", "none")][1] == 2.0
+
+
+def test_overhang_elements_by_hand():
+    """1 cm grid cells (faces of two 1 cm sides and a 1.41 cm diagonal: median edge 1 cm) under a
+    6 cm overhang (specimen 15 cm, support 9 cm): 6 elements across; 2 cm cells: 3."""
+    from cloth.core.mesh import grid_mesh
+    from cloth.eval.drape import DrapeProbe
+
+    probe = DrapeProbe(center=(0.0, 0.0), support_radius=0.09, specimen_radius=0.15)
+    for cells, expect in ((40, 6.0), (20, 3.0)):
+        m = grid_mesh(0.4, 0.4, cells, cells)
+        m.vert_u = m.vert_u - 0.2  # centred on the specimen's centre
+        assert probe.overhang_elements(m) == pytest.approx(expect, rel=1e-9)
+
+
+def test_the_view_coarsened_drape_mesh_resolves_the_overhang():
+    """conf/drape_mesh/viewdep.yaml: the view-coarsened specimen (all of it behind the camera) keeps
+    at least 4 elements across its 6 cm overhang (issue 35), where size_max alone would leave one."""
+    cfg = compose_config("scene=cusick_drape", "+drape_mesh=viewdep", *QUIET)
+    sim, _ = build_simulation(cfg)
+    for _ in range(3):
+        rec = sim.advance_frame()
+    assert rec["faces_out_of_frame"] == rec["faces"] and rec["overhang_elements"] >= 4.0
 
 
 def test_the_standing_dancer_records_her_hem_and_the_table_compares_it_with_the_fine_reference(tmp_path):
@@ -138,7 +168,7 @@ def test_the_standing_dancer_records_her_hem_and_the_table_compares_it_with_the_
     cfg = compose_config("+experiment=ablation_buckling_dancer", "+point=nu_out/0.01", *QUIET)
     sim, frames = build_simulation(cfg)
     rec = sim.state_record()
-    assert frames == 60 and rec["faces_out_of_frame"] == rec["faces"]  # the whole skirt out of view
+    assert frames == 100 and rec["faces_out_of_frame"] == rec["faces"]  # the whole skirt out of view
     assert rec["hem_radius_mean_m"] == pytest.approx(0.73, rel=1e-3) and rec["folds"] == 0  # a flat disc
     assert rec["drape_coefficient"] == pytest.approx(1.0, abs=SHADOW_RTOL)
     with pytest.raises(ConfigError, match="hem_probe measures a circle skirt"):

@@ -11,6 +11,8 @@ drapes under gravity. Its measures, all from the cloth's positions:
   limp one.
 * ``hem_radius_mean_m``, ``hem_radius_min_m``, ``hem_radius_max_m``: horizontal distance of the
   hem's nodes (material radius R) from the support's axis.
+* ``overhang_elements``: elements across the overhang (R - r over the median material edge of the
+  faces beyond the support): whether a mesh can show the folds at all.
 * ``folds``: the number of folds around the hem: peaks of the hem's horizontal radius taken in
   order around the specimen (periodic), each standing out from its neighbours by at least
   FOLD_PROMINENCE of the radius' range and by FOLD_MIN_PROMINENCE_M (scipy.signal.find_peaks'
@@ -92,6 +94,16 @@ class DrapeProbe:
     support_radius: float
     specimen_radius: float
 
+    def overhang_elements(self, mesh) -> float:
+        """Elements across the overhang (the specimen beyond its support): its width over the median
+        material edge of the faces whose centroid lies beyond the support (NaN without any)."""
+        u = mesh.vert_u[mesh.face_verts]  # (F, 3, 2)
+        out = np.linalg.norm(u.mean(axis=1), axis=1) > self.support_radius
+        if not out.any():
+            return float("nan")
+        edges = np.linalg.norm(u[out] - np.roll(u[out], -1, axis=1), axis=2)
+        return float((self.specimen_radius - self.support_radius) / np.median(edges))
+
     def __call__(self, mesh) -> dict:
         c = np.asarray(self.center, dtype=np.float64)[:2]
         area = shadow_area(mesh.node_x, mesh.face_nodes, c, 1.05 * self.specimen_radius)
@@ -102,7 +114,7 @@ class DrapeProbe:
         nodes = mesh.vert_node[verts[order]]
         radius = np.linalg.norm(mesh.node_x[nodes, :2] - c, axis=1)
         dc = drape_coefficient(area, np.pi * self.support_radius ** 2, float(mesh.face_area.sum()))
-        return {"drape_coefficient": dc,
+        return {"drape_coefficient": dc, "overhang_elements": self.overhang_elements(mesh),
                 "hem_radius_mean_m": float(radius.mean()) if radius.size else float("nan"),
                 "hem_radius_min_m": float(radius.min()) if radius.size else float("nan"),
                 "hem_radius_max_m": float(radius.max()) if radius.size else float("nan"),

@@ -10,8 +10,9 @@ out-of-frustum faces, the compressive principal strains that the membrane sees a
 
 with A the material-space face areas and A_max, A_min their extremes over the out-of-frustum
 faces: the bigger a face, the more compressible. Every compensated face keeps alpha >= ALPHA_MIN
-(`BucklingParams.alpha_min`; 0 gives the paper's eq 11 as written), so that none loses all its
-resistance to compression and collapses. The membrane kernel (cloth.physics.membrane) applies
+(`BucklingParams.alpha_min`; 0 gives the paper's eq 11 as written), and a compensated face squeezed
+below COLLAPSE_AREA_RATIO of its area meets an area barrier (cloth.physics.membrane), so that none
+collapses. The membrane kernel (cloth.physics.membrane) applies
 eq 10 inside its energy, gradient and Hessian, per face, from the alpha this module computes.
 This is a physical effect, independent of the view: mode=viewdep switches it on by default and
 mode=adaptive can use it too (it needs a camera to know which faces are out of the frustum).
@@ -24,10 +25,11 @@ from dataclasses import dataclass
 import numpy as np
 
 # Floor of alpha on the compensated faces. Eq 11 gives the largest out-of-frustum face alpha = 0:
-# no resistance to compression at all, so nothing stops it from collapsing to a line (where its
-# hinges lose their shape, cloth.physics.bending). With the floor every face keeps 1 % of its
-# membrane's compression stiffness (20 N/m for cotton, still 100 times below its stretch
-# stiffness' effect on a wrinkle), and eq 11's ordering of the faces is kept above it.
+# no resistance to compression at all. With the floor every face keeps alpha^2 = 1e-4 of its
+# membrane's compression stiffness (eq 10 scales the strain, so the energy by alpha^2), and eq 11's
+# ordering of the faces is kept above it. That alone does not stop a face from collapsing to a
+# line (a hanging view-coarsened specimen did, and diverged): below a quarter of its rest area a
+# compensated face meets the membrane's area barrier (cloth.physics.membrane.COLLAPSE_AREA_RATIO).
 ALPHA_MIN = 0.01
 
 

@@ -268,6 +268,79 @@ def _filtered_element_into(F, E, Dm_inv, area, mu, lam, alpha, project, grad, he
     return energy
 
 
+# Area barrier of the compensated faces (alpha < 1). Eq 10 leaves a compensated face almost no
+# resistance to compression (alpha^2 of its stiffness: 1e-4 at the floor, cloth.physics.buckling),
+# and StVK none near a collapse anyway (its force vanishes as a principal stretch goes to 0), so a
+# hanging view-coarsened specimen was seen to fold a face to 0.3 % of its area, its hinges then to
+# pull its light nodes at 5e5 m/s^2, and the run to diverge (the drape test at 1.5 cm, k = 10,
+# frame 29). Below COLLAPSE_AREA_RATIO of its rest area (J = world area / rest area), a compensated
+# face stores W_b = A kappa / 2 (J_c - J)^2 with kappa = 2 mu + lam (the membrane's compression
+# stiffness): C1 at J_c, nothing above it, so the compensation of buckling-scale compression (a
+# quarter of the area is a principal stretch of 0.5 both ways, or 0.25 one way) is untouched.
+COLLAPSE_AREA_RATIO = 0.25
+
+
+@njit(cache=True)
+def _add_skew3(H, r0, c0, v, s):
+    """H[r0:r0+3, c0:c0+3] += s [v]_x (accumulates)."""
+    H[r0, c0 + 1] -= s * v[2]
+    H[r0, c0 + 2] += s * v[1]
+    H[r0 + 1, c0] += s * v[2]
+    H[r0 + 1, c0 + 2] -= s * v[0]
+    H[r0 + 2, c0] -= s * v[1]
+    H[r0 + 2, c0 + 1] += s * v[0]
+
+
+@njit(cache=True)
+def area_barrier_into(x0, x1, x2, area, kappa, exact, grad, hess):
+    """Adds the collapse barrier of a compensated face (COLLAPSE_AREA_RATIO) to grad (9,) and hess
+    (9, 9); returns its energy (0 above the ratio, or for a face of no world area).
+
+    With e1 = x1 - x0, e2 = x2 - x0, n = e1 x e2 and J = |n| / (2 A): dJ/dx1 = (e2 x n^) / 2A,
+    dJ/dx2 = (n^ x e1) / 2A, dJ/dx0 = -(both); the Hessian is A kappa (dJ dJ^T - (J_c - J) d2J),
+    d2J = (N^T (I - n^ n^T) N / |n| + C) / 2A in (e1, e2) with N = [-[e2]x, [e1]x] and C the
+    bilinear form n^ . (de1 x de2' + de1' x de2). `exact` = False keeps the Gauss-Newton part
+    A kappa dJ dJ^T only: positive semi-definite and bounded as the face collapses."""
+    e1 = x1 - x0
+    e2 = x2 - x0
+    n = np.cross(e1, e2)
+    nn = np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+    J = nn / (2.0 * area)
+    if J >= COLLAPSE_AREA_RATIO or nn == 0.0:
+        return 0.0
+    nh = n / nn
+    r = COLLAPSE_AREA_RATIO - J
+    d = np.empty(9)
+    d[3:6] = np.cross(e2, nh) / (2.0 * area)
+    d[6:9] = np.cross(nh, e1) / (2.0 * area)
+    d[0:3] = -(d[3:6] + d[6:9])
+    ka = kappa * area
+    for i in range(9):
+        grad[i] -= ka * r * d[i]
+        for j in range(9):
+            hess[i, j] += ka * d[i] * d[j]
+    if exact:  # - A kappa r d2J, built in (e1, e2) and mapped to (x0, x1, x2)
+        N = np.zeros((3, 6))
+        _add_skew3(N, 0, 0, e2, -1.0)
+        _add_skew3(N, 0, 3, e1, 1.0)
+        Pn = np.eye(3) - np.outer(nh, nh)
+        He = N.T @ Pn @ N / nn
+        # C: n^ . (a x b) = a . (b x n^) = -a^T [n^]x b  for a = de1, b = de2'
+        _add_skew3(He, 0, 3, nh, -1.0)
+        _add_skew3(He, 3, 0, nh, 1.0)
+        He *= -ka * r / (2.0 * area)
+        for a in range(2):
+            for b in range(2):
+                for i in range(3):
+                    for j in range(3):
+                        h = He[3 * a + i, 3 * b + j]
+                        hess[3 * (a + 1) + i, 3 * (b + 1) + j] += h
+                        hess[i, 3 * (b + 1) + j] -= h
+                        hess[3 * (a + 1) + i, j] -= h
+                        hess[i, j] += h
+    return 0.5 * ka * r * r
+
+
 @njit(cache=True)
 def stvk_element_into(x0, x1, x2, Dm_inv, area, mu, lam, project, grad, hess, alpha=1.0):
     """StVK energy of one face; writes the gradient (9,) and Hessian (9, 9), returns the energy.
@@ -280,7 +353,9 @@ def stvk_element_into(x0, x1, x2, Dm_inv, area, mu, lam, project, grad, hess, al
     F = deformation_gradient(x0, x1, x2, Dm_inv)
     E = green_strain(F)
     if alpha < 1.0 and (E[0, 0] + E[1, 1] < 0.0 or E[0, 0] * E[1, 1] - E[0, 1] * E[0, 1] < 0.0):
-        return _filtered_element_into(F, E, Dm_inv, area, mu, lam, alpha, project, grad, hess)
+        # (a face below COLLAPSE_AREA_RATIO is compressed, so the barrier is needed on this path only)
+        energy = _filtered_element_into(F, E, Dm_inv, area, mu, lam, alpha, project, grad, hess)
+        return energy + area_barrier_into(x0, x1, x2, area, 2.0 * mu + lam, not project, grad, hess)
     trE = E[0, 0] + E[1, 1]
     energy = area * (mu * (E[0, 0] ** 2 + 2.0 * E[0, 1] ** 2 + E[1, 1] ** 2) + 0.5 * lam * trE * trE)
     S00 = 2.0 * mu * E[0, 0] + lam * trE

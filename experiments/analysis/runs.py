@@ -58,8 +58,11 @@ REFERENCE_ERROR_FILES = {"sync_fine": "reference_error_fine", "sync_half_dt": "r
                          "sync_floor": "reference_floor"}
 # Per-frame measures a scene declares (cloth.core.scene.Scene.probes) or the view gives, taken at
 # equilibrium: the mean over the last EQUILIBRIUM_FRAMES frames -> runs-table column <name>_final.
-SCENE_MEASURES = ("drape_coefficient", "folds", "hem_radius_mean_m", "compressive_energy_out_j")
+SCENE_MEASURES = ("drape_coefficient", "folds", "hem_radius_mean_m", "compressive_energy_out_j",
+                  "overhang_elements")
 EQUILIBRIUM_FRAMES = 10
+# and how far each still moves over those frames (max - min): <name>_drift, what the ablations'
+# settling criterion reads (paper_figures.ablations: SETTLED_DRAPE_COEFFICIENT, SETTLED_HEM_M)
 STAT_COLUMNS = {"faces": "faces", "verts": "verts", "sim_s": "time"}  # frames column -> Table 1 name
 
 
@@ -264,7 +267,8 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
     faces/verts/time min/max/mean (time_*_s from sim_s), time_total_s, io_mean_s and wall_mean_s
     (I/O and the whole frame, beside the simulation time), time_<phase>_mean_s,
     drape_mesh (ablation_buckling's mesh, '' elsewhere), <measure>_final of SCENE_MEASURES (mean
-    over the last EQUILIBRIUM_FRAMES frames; NaN where a run does not record it),
+    over the last EQUILIBRIUM_FRAMES frames; NaN where a run does not record it) and <measure>_drift
+    (its range over them),
     size_min_fraction_mean / size_max_fraction_mean (faces at a sizing bound over faces, mean over
     the frames that remeshed) and edge_at_size_min_m (median over those frames; NaN without them),
     and accuracy.json's ACCURACY_KEYS plus accuracy_frames (NaN without accuracy), and sync.json's
@@ -330,6 +334,7 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
     for name in SCENE_MEASURES:
         v = frames[name].astype(float).tail(EQUILIBRIUM_FRAMES) if name in frames.columns else pd.Series(dtype=float)
         row[f"{name}_final"] = float(v.mean()) if v.notna().any() else math.nan
+        row[f"{name}_drift"] = float(v.max() - v.min()) if v.notna().any() else math.nan
     row["time_total_s"] = float(frames["sim_s"].sum())
     row["io_mean_s"] = float(frames["time_io_s"].mean()) if "time_io_s" in frames.columns else math.nan
     row["wall_mean_s"] = float(frames["wall_s"].mean()) if "wall_s" in frames.columns else math.nan
