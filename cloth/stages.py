@@ -25,6 +25,7 @@ from cloth.physics.forces import (
     Membrane,
     Wind,
 )
+from cloth.physics.linsolve import BENDING_HESSIAN_DEFAULT
 from cloth.physics.membrane import GAUSS_NEWTON
 
 # Force terms in the order they are assembled (each present only when its effect is declared).
@@ -92,7 +93,7 @@ def plan_stages(scene: Scene, remesher=None, buckling=None) -> Stages:
     )
 
 
-def build_force_terms(scene: Scene, bending_hessian: str = "projected") -> list[ForceTerm]:
+def build_force_terms(scene: Scene, bending_hessian: str = BENDING_HESSIAN_DEFAULT) -> list[ForceTerm]:
     """The force terms of the scene's declared effects, in a fixed order (built once).
 
     The material's type chooses the elasticity: a Material gets the isotropic StVK membrane and

@@ -15,7 +15,7 @@ exits 1 unless every run passed. `--report` writes the tables with the commit to
 and the runs beside it (.csv); `--resume` takes such a table and runs only what it lacks (its
 runs of other cases are kept in the new tables as they were), so that
 the paper-scale suite (hours) can run over several sittings. `--set` adds Hydra overrides to every
-case (a solver option tried on every hard case: `--set solver.bending_hessian=gauss_newton`).
+case (a solver option tried on every hard case: `--set solver.bending_hessian=projected`).
 A run in progress is checkpointed (<out>/checkpoints/<scale>_<case>_seed<k>_<frames>f, with a
 digest of the --set overrides if any, at most CHECKPOINT_WALL_S apart): a suite
 started again with the same --out continues a killed run from its last checkpoint (the row's
@@ -288,7 +288,7 @@ def main(argv=None) -> None:
                     help="a table.csv (or a report's .csv) of an earlier, unfinished suite: its runs at this "
                          "scale and frame count are kept, not run again")
     ap.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", dest="extra",
-                    help="Hydra overrides added to every case (e.g. solver.bending_hessian=gauss_newton); "
+                    help="Hydra overrides added to every case (e.g. solver.bending_hessian=projected); "
                          "a resumed table's runs count only if they had the same")
     ap.add_argument("--fresh", action="store_true",
                     help="run every case from its first frame, ignoring checkpoints of killed runs in --out")

@@ -452,15 +452,17 @@ FORCE_ROUNDOFF_REL = 1e-10
 
 
 def test_the_gauss_newton_bending_hessian_is_the_solver_s_choice():
-    """solver.bending_hessian=gauss_newton gives the bending term the Gauss-Newton Hessian (and
-    the default keeps the projected one); the forces are the same, and a frame of each stays
-    finite and close to the other's."""
+    """solver.bending_hessian=gauss_newton gives the bending term the Gauss-Newton Hessian (the
+    default, BENDING_HESSIAN_DEFAULT) and projected the projected one; the forces are the same, and
+    a frame of each stays finite and close to the other's."""
     from cloth.physics.membrane import GAUSS_NEWTON
 
     sims = {h: build_sim("scene=sheet_on_sphere", "mode=nonadaptive", "frames=1", f"solver.bending_hessian={h}")
             for h in ("projected", "gauss_newton")}
     kinds = {h: [t.project for t in s.terms if t.name == "bending"] for h, s in sims.items()}
     assert kinds["projected"] == [True] and kinds["gauss_newton"] == [GAUSS_NEWTON]
+    default = build_sim("scene=sheet_on_sphere", "mode=nonadaptive", "frames=1")
+    assert [t.project for t in default.terms if t.name == "bending"] == [GAUSS_NEWTON]
     forces, bent = {}, None
     for h, sim in sims.items():  # at the start state moved out of plane (flat, every hinge is at rest)
         if bent is None:

@@ -92,7 +92,7 @@ def test_stability_tool_writes_csv_and_markdown(tmp_path):
 
 
 def test_stability_set_adds_overrides_to_every_case_and_keys_resumed_runs(tmp_path, monkeypatch, capsys):
-    """--set solver.bending_hessian=gauss_newton reaches every case's simulation and its rows ("set");
+    """--set solver.bending_hessian=projected reaches every case's simulation and its rows ("set");
     a table of runs without it is not resumed as theirs; a bad override is refused before any run."""
     from experiments import stability
 
@@ -107,11 +107,11 @@ def test_stability_set_adds_overrides_to_every_case_and_keys_resumed_runs(tmp_pa
     common = ["--scale", "small", "--frames", "1", "--seeds", "1", "--cases", "one_frame_step"]
     stability.main(common + ["--out", str(tmp_path / "plain")])
     plain = _only_child(tmp_path / "plain") / "table.csv"
-    stability.main(common + ["--out", str(tmp_path / "gn"), "--set", "solver.bending_hessian=gauss_newton",
+    stability.main(common + ["--out", str(tmp_path / "gn"), "--set", "solver.bending_hessian=projected",
                              "--resume", str(plain)])
-    assert built == ["projected", "gauss_newton"]  # the plain run was not taken for the other's
+    assert built == ["gauss_newton", "projected"]  # the plain run was not taken for the other's
     table = pd.read_csv(_only_child(tmp_path / "gn") / "table.csv", keep_default_na=False)
-    assert table["set"].tolist() == ["solver.bending_hessian=gauss_newton"] and table["ok"].all()
+    assert table["set"].tolist() == ["solver.bending_hessian=projected"] and table["ok"].all()
     for bad in (["solver.no_such_key=1"], ["solver.bending_hessian"]):
         with pytest.raises(SystemExit):
             stability.main(common + ["--out", str(tmp_path / "bad"), "--set", *bad])

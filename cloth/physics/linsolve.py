@@ -36,6 +36,12 @@ METHODS = ("auto", "cholesky", "pcg", "direct")
 # "gauss_newton", only its term w grad theta grad theta^T, PSD by construction and exact at the
 # rest angle (ARCSim's). The forces are the same; only the step's matrix differs.
 BENDING_HESSIANS = ("projected", "gauss_newton")
+# The default, gauss_newton since the accuracy study of 50124b5 (solo_dancer, small, 40 paired
+# windows, each mode restarted on its own mesh) found it not worse: adaptive -0.92 mm (90 %: -1.92
+# to +0.15), view-dependent -2.56 mm (-9.81 to +3.48) against the projected Hessian, and the
+# small stability suite passed 80 of 80 runs with it; physics 2.8-3.1x cheaper on the benchmark's
+# sheet at 8k-32k faces (experiments.benchmark --bending-hessian both).
+BENDING_HESSIAN_DEFAULT = "gauss_newton"
 # "auto" factorizes from this many unknowns (3 per node) up. Measured on the dancer's systems:
 # 150-250 unknowns (out of view), PCG 0.13 ms per step against PARDISO's 1 ms; about 3,000
 # (1.8k faces in view), PARDISO ahead; the sheet's 3,267, 17 ms against 3 ms.
@@ -90,7 +96,7 @@ class SolverOptions:
     method: str = "auto"  # one of METHODS (module docstring)
     tolerance: float = 1e-6  # relative residual |b - A x| / |b| every method must reach
     max_iterations: int = 1000  # PCG iteration cap; the record says when it is hit
-    bending_hessian: str = "projected"  # one of BENDING_HESSIANS
+    bending_hessian: str = BENDING_HESSIAN_DEFAULT  # one of BENDING_HESSIANS
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
