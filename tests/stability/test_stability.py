@@ -66,11 +66,12 @@ def test_a_bad_argument_stops_before_any_run(argv, tmp_path, capsys):
 
 
 def _fake_run_case(calls, folders=None):
-    def run(c, frames, scale, seed, checkpoints=None):
+    def run(c, frames, scale, seed, checkpoints=None, extra=()):
         calls.append((c.name, seed))
         if folders is not None:
             folders.append(checkpoints)
-        return {"case": c.name, "seed": seed, "what": c.what, "frames": frames, "error": "", "frames_run": frames,
+        return {"case": c.name, "seed": seed, "what": c.what, "frames": frames, "error": "", "set": " ".join(extra),
+                "frames_run": frames,
                 "max_kinetic_energy_j": 0.1, "kinetic_energy_bound_j": 1.0, "min_face_quality": 0.3,
                 "steps_rejected": 0, "s_per_frame": 0.1, "ok": True}
     return run
