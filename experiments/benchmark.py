@@ -67,7 +67,7 @@ import cloth.physics.integrator
 from cloth.core.material import Material
 from cloth.core.records import COLLISION_PARTS, PHASES, SIM_PHASES
 from cloth.io.manifest import environment_manifest, write_json_atomic, write_text_atomic
-from cloth.physics.linsolve import BENDING_HESSIANS, METHODS, SolverOptions, resolve_method
+from cloth.physics.linsolve import BENDING_HESSIAN_DEFAULT, BENDING_HESSIANS, METHODS, SolverOptions, resolve_method
 from cloth.scenes.registry import build_scene
 from cloth.simulation import Simulation
 
@@ -262,9 +262,9 @@ def main(argv=None) -> None:
     parser.add_argument("--warmup", type=int, default=None, help="untimed frames before timing (12; --modes: 10)")
     parser.add_argument("--solver", choices=METHODS, default="auto",
                         help="linear solver (cloth.physics.linsolve); auto: cholesky where MKL loads, else pcg")
-    parser.add_argument("--bending-hessian", choices=(*BENDING_HESSIANS, "both"), default="projected",
-                        help="the bending term's Hessian (solver.bending_hessian); both: each resolution with each, "
-                             "and their ratio")
+    parser.add_argument("--bending-hessian", choices=(*BENDING_HESSIANS, "both"), default=BENDING_HESSIAN_DEFAULT,
+                        help="the bending term's Hessian (solver.bending_hessian; default: the solver's, "
+                             f"{BENDING_HESSIAN_DEFAULT}); both: each resolution with each, and their ratio")
     parser.add_argument("--against", default=None, metavar="REV",
                         help="time commit REV's benchmark on the same sheets in the same run and print the speed-up")
     parser.add_argument("--out", type=Path, default=Path("results/benchmark"))

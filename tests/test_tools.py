@@ -27,6 +27,8 @@ def test_benchmark_writes_time_per_step_by_phase(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["growth_exponent"] == pytest.approx(summary["growth_exponent"])  # finite, not NaN
     assert set(steps.solver) <= {"cholesky", "pcg"} and (steps.solves_capped == 0).all()
+    from cloth.physics.linsolve import BENDING_HESSIAN_DEFAULT
+    assert set(steps.bending_hessian) == {BENDING_HESSIAN_DEFAULT}  # the solver's default, as a run's
 
 
 def test_benchmark_times_both_bending_hessians_on_the_same_sheet(tmp_path, capsys):
