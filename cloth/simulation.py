@@ -130,7 +130,7 @@ class Simulation(StepControl, Restart, FrameRecord):
         self.remesher = remesher
         self.max_speed = float(max_speed)  # m/s: a faster node means the run has gone bad
         self.stages = plan_stages(scene, remesher, buckling)
-        self.terms = build_force_terms(scene, self.solver.bending_hessian)
+        self.terms = build_force_terms(scene, self.solver.bending_hessian, self.solver.membrane_hessian)
         # What the stages use (None when their stage is not planned). The remesh stage reads
         # `contact`, `obstacle_set` and `self_collision` to keep a remesh clear of obstacles and
         # of crossings.

@@ -93,17 +93,20 @@ def plan_stages(scene: Scene, remesher=None, buckling=None) -> Stages:
     )
 
 
-def build_force_terms(scene: Scene, bending_hessian: str = BENDING_HESSIAN_DEFAULT) -> list[ForceTerm]:
+def build_force_terms(scene: Scene, bending_hessian: str = BENDING_HESSIAN_DEFAULT,
+                      membrane_hessian: str = "projected") -> list[ForceTerm]:
     """The force terms of the scene's declared effects, in a fixed order (built once).
 
     The material's type chooses the elasticity: a Material gets the isotropic StVK membrane and
     one bending stiffness, a MeasuredMaterial ARCSim's measured membrane and per-hinge bending.
-    `bending_hessian` (cloth.physics.linsolve.BENDING_HESSIANS): the bending term's Hessian."""
+    `bending_hessian` and `membrane_hessian` (cloth.physics.linsolve.BENDING_HESSIANS,
+    MEMBRANE_HESSIANS): the bending and StVK membrane terms' Hessians."""
     terms: list[ForceTerm] = []
     material = scene.material
     measured = isinstance(material, MeasuredMaterial)
     if "membrane" in scene.effects:
-        terms.append(MeasuredMembrane(material) if measured else Membrane(*material.lame()))
+        terms.append(MeasuredMembrane(material) if measured else
+                     Membrane(*material.lame(), project=GAUSS_NEWTON if membrane_hessian == "gauss_newton" else True))
     if "bending" in scene.effects:
         project = GAUSS_NEWTON if bending_hessian == "gauss_newton" else True
         terms.append(MeasuredBending(material, project) if measured else Bending(material.bending_stiffness, project))

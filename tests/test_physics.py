@@ -482,3 +482,34 @@ def test_the_gauss_newton_bending_hessian_is_the_solver_s_choice():
     x = {h: s.mesh.node_x for h, s in sims.items()}
     assert np.isfinite(x["gauss_newton"]).all()
     assert np.abs(x["gauss_newton"] - x["projected"]).max() < HESSIAN_CHOICE_M
+
+
+def test_the_gauss_newton_membrane_hessian_is_the_solver_s_option():
+    """solver.membrane_hessian=gauss_newton gives the StVK membrane the Gauss-Newton Hessian (the
+    stress's positive part in the geometric term: positive semi-definite, no eigen-decomposition);
+    the default keeps the projected one; the forces are the same; a bad value names the key."""
+    from cloth.physics.membrane import GAUSS_NEWTON
+    from experiments.build import ConfigError
+
+    sims = {h: build_sim("scene=sheet_on_sphere", "mode=nonadaptive", "frames=1", f"solver.membrane_hessian={h}")
+            for h in ("projected", "gauss_newton")}
+    kinds = {h: [t.project for t in s.terms if t.name == "membrane"] for h, s in sims.items()}
+    assert kinds["projected"] == [True] and kinds["gauss_newton"] == [GAUSS_NEWTON]
+    default = build_sim("scene=sheet_on_sphere", "mode=nonadaptive", "frames=1")
+    assert [t.project for t in default.terms if t.name == "membrane"] == [True]
+    rng = np.random.default_rng(1)
+    squeezed = None
+    out = {}
+    for h, sim in sims.items():  # compressed in plane and moved out of it: indefinite element Hessians
+        if squeezed is None:
+            squeezed = sim.mesh.node_x * [0.8, 0.9, 1.0] + 1e-3 * rng.standard_normal(sim.mesh.node_x.shape)
+        sim.mesh.node_x[:] = squeezed
+        acc = ForceAccumulator.zeros(sim.mesh.n_nodes, sim.pattern)
+        term = next(t for t in sim.terms if t.name == "membrane")
+        term.accumulate(sim.mesh, 0.0, acc)
+        out[h] = (acc.force.copy(), sim.pattern.to_scipy(acc.K).toarray())
+    (f, K), (f_gn, K_gn) = out["projected"], out["gauss_newton"]
+    assert np.array_equal(f, f_gn) and not np.allclose(K, K_gn)
+    assert np.linalg.eigvalsh(0.5 * (K_gn + K_gn.T)).min() >= -1e-9 * np.abs(K_gn).max()
+    with pytest.raises(ConfigError, match="solver.membrane_hessian"):
+        build_sim("scene=sheet_on_sphere", "solver.membrane_hessian=exact")

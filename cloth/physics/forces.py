@@ -73,7 +73,7 @@ class Membrane(ForceTerm):
     name = "membrane"
 
     def __init__(self, mu: float, lam: float, project: bool = True):
-        self.mu, self.lam, self.project = float(mu), float(lam), bool(project)
+        self.mu, self.lam, self.project = float(mu), float(lam), _hessian_kind(project)
 
     families = ("faces",)
 

@@ -42,6 +42,13 @@ BENDING_HESSIANS = ("projected", "gauss_newton")
 # small stability suite passed 80 of 80 runs with it; physics 2.8-3.1x cheaper on the benchmark's
 # sheet at 8k-32k faces (experiments.benchmark --bending-hessian both).
 BENDING_HESSIAN_DEFAULT = "gauss_newton"
+# The StVK membrane's Hessian: "projected", the exact one projected to positive semi-definite where
+# the stress is not (a 6x6 eigen-decomposition per compressed face, cloth.physics.membrane
+# .project_psd_face: half the membrane's cost at 32k faces); "gauss_newton", the stress's positive
+# part in the geometric term, PSD with no eigen-decomposition (what the pop filter uses). A face
+# with buckling compensation is projected either way; ARCSim's measured membrane is projected.
+# Not the default until the accuracy study and the stability suite have been run with it.
+MEMBRANE_HESSIANS = ("projected", "gauss_newton")
 # "auto" factorizes from this many unknowns (3 per node) up. Measured on the dancer's systems:
 # 150-250 unknowns (out of view), PCG 0.13 ms per step against PARDISO's 1 ms; about 3,000
 # (1.8k faces in view), PARDISO ahead; the sheet's 3,267, 17 ms against 3 ms.
@@ -97,6 +104,7 @@ class SolverOptions:
     tolerance: float = 1e-6  # relative residual |b - A x| / |b| every method must reach
     max_iterations: int = 1000  # PCG iteration cap; the record says when it is hit
     bending_hessian: str = BENDING_HESSIAN_DEFAULT  # one of BENDING_HESSIANS
+    membrane_hessian: str = "projected"  # one of MEMBRANE_HESSIANS
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -110,6 +118,9 @@ class SolverOptions:
         if self.bending_hessian not in BENDING_HESSIANS:
             raise ValueError(f"solver.bending_hessian must be one of {', '.join(BENDING_HESSIANS)}, "
                              f"got {self.bending_hessian!r}")
+        if self.membrane_hessian not in MEMBRANE_HESSIANS:
+            raise ValueError(f"solver.membrane_hessian must be one of {', '.join(MEMBRANE_HESSIANS)}, "
+                             f"got {self.membrane_hessian!r}")
 
 
 @njit(cache=True)
