@@ -135,9 +135,10 @@ def equal_quality_fixed(g: pd.DataFrame, measure: str, err: pd.Series, lo, hi,
     return None
 
 
-# How a point integrates (the solver's bending Hessian, the implicit steps per frame): a fixed mesh
+# How a point integrates (the solver's bending and membrane Hessians, the implicit steps per frame; a
+# setting missing from an older run's config is its default then, projected): a fixed mesh
 # is judged against the adaptive run that integrates as it does.
-INTEGRATION = {"bending_hessian": "projected", "steps_per_frame": math.nan}
+INTEGRATION = {"bending_hessian": "projected", "membrane_hessian": "projected", "steps_per_frame": math.nan}
 
 
 def _setting(v, default) -> str:
@@ -168,10 +169,11 @@ def integration_table(g: pd.DataFrame) -> pd.DataFrame:
     paired difference other - base of sync_error_mm over the windows both have with its 90 % BCa
     interval, and both runs' simulation time per frame (free runs, and their windows). not_worse:
     the interval does not lie above 0 (the Gauss-Newton bending Hessian becomes the default only
-    if so, issue 34). Columns variant, base, option, bending_hessian, steps_per_frame, diff_mm,
-    lo_mm, hi_mm, windows, not_worse, time_s, base_time_s, speedup (base over other), window_time_s,
+    if so, issue 34). Columns variant, base, option, bending_hessian, membrane_hessian, steps_per_frame,
+    diff_mm, lo_mm, hi_mm, windows, not_worse, time_s, base_time_s, speedup (base over other), window_time_s,
     base_window_time_s."""
-    cols = ["variant", "base", "option", "bending_hessian", "steps_per_frame", "diff_mm", "lo_mm", "hi_mm",
+    cols = ["variant", "base", "option", "bending_hessian", "membrane_hessian", "steps_per_frame", "diff_mm", "lo_mm",
+            "hi_mm",
             "windows", "not_worse", "time_s", "base_time_s", "speedup", "window_time_s", "base_window_time_s"]
     rows = []
     variants = g["variant"].fillna("")
@@ -192,7 +194,8 @@ def integration_table(g: pd.DataFrame) -> pd.DataFrame:
         lo, hi = paired_difference_interval(wr, wb)
         get = lambda row, key: float(row.get(key, np.nan))  # noqa: E731
         rows.append({"variant": r["variant"], "base": base_name, "option": option,
-                     "bending_hessian": r.get("bending_hessian", ""), "steps_per_frame": get(r, "steps_per_frame"),
+                     "bending_hessian": r.get("bending_hessian", ""), "membrane_hessian": r.get("membrane_hessian", ""),
+                     "steps_per_frame": get(r, "steps_per_frame"),
                      "diff_mm": float(d.mean()) if d.size else np.nan, "lo_mm": lo, "hi_mm": hi,
                      "windows": int(d.size), "not_worse": bool(lo <= 0.0),
                      "time_s": get(r, "time_mean_s"), "base_time_s": get(b, "time_mean_s"),

@@ -234,18 +234,22 @@ def test_an_integration_point_is_compared_window_by_window_with_its_base_and_kep
              ("viewdep", "viewdep, bending gauss_newton", None, 800, base + 9.0),
              ("nonadaptive", "nonadaptive", 1.0, 2500, base + 20.0),
              ("nonadaptive", "nonadaptive, bending gauss_newton", 1.0, 2500, base - 5.0),
-             ("nonadaptive", "nonadaptive, 16 steps", 1.0, 2500, base - 8.0))
+             ("nonadaptive", "nonadaptive, 16 steps", 1.0, 2500, base - 8.0),
+             ("nonadaptive", "nonadaptive, membrane gauss_newton", 1.0, 2500, base - 9.0))
     _mm_runs(tmp_path, cases, frames)
     for i, (_, variant, *_rest) in enumerate(cases):
         path = tmp_path / f"{i}" / "config.yaml"
         cfg = yaml.safe_load(path.read_text())
         if "gauss_newton" in variant:
             path.write_text(yaml.safe_dump({**cfg, "solver": {"bending_hessian": "gauss_newton"}}))
+        if "membrane" in variant:
+            path.write_text(yaml.safe_dump({**cfg, "solver": {"membrane_hessian": "gauss_newton"}}))
         if "16 steps" in variant:
             cfg["scene"].setdefault("params", {})["steps_per_frame"] = 16
             path.write_text(yaml.safe_dump(cfg))
     runs = load_runs([tmp_path]).runs
-    assert sorted(runs["bending_hessian"]) == ["gauss_newton"] * 3 + ["projected"] * 4
+    assert sorted(runs["bending_hessian"]) == ["gauss_newton"] * 3 + ["projected"] * 5
+    assert sorted(runs["membrane_hessian"]) == ["gauss_newton"] + ["projected"] * 7
     assert runs.set_index("variant").loc["nonadaptive, 16 steps", "steps_per_frame"] == 16
     t = integration_table(runs).set_index("variant")
     assert t.loc["adaptive, bending gauss_newton", ["lo_mm", "hi_mm"]].tolist() == pytest.approx([0.5, 0.5])
@@ -254,5 +258,6 @@ def test_an_integration_point_is_compared_window_by_window_with_its_base_and_kep
     assert t.loc["viewdep, bending gauss_newton", "not_worse"]
     assert t.loc["nonadaptive, bending gauss_newton", ["base", "diff_mm"]].tolist() == ["nonadaptive", -25.0]
     assert t.loc["nonadaptive, 16 steps", ["option", "diff_mm"]].tolist() == ["16 steps", -28.0]
-    assert t["windows"].tolist() == [len(frames)] * 4
+    assert t.loc["nonadaptive, membrane gauss_newton", ["option", "diff_mm"]].tolist() == ["membrane gauss_newton", -29.0]
+    assert t["windows"].tolist() == [len(frames)] * 5
     assert equivalence_table(runs)["variant"].tolist() == ["nonadaptive"]  # neither other integration

@@ -316,6 +316,7 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
         row[col] = math.nan if v is None else (bool(v) if col == "occlusion" else _float(v))
     row["resolution_factor"] = _float(cfg.get("resolution_factor", 1.0)) if mode == "nonadaptive" else math.nan
     row["bending_hessian"] = _text(_get(cfg, "solver.bending_hessian")) or "projected"
+    row["membrane_hessian"] = _text(_get(cfg, "solver.membrane_hessian")) or "projected"
     row["steps_per_frame"] = _float(_get(cfg, "scene.params.steps_per_frame"))
     row["buckling_k"] = _float(buckling.get("k")) if isinstance(buckling, dict) else math.nan
     row["buckling_mode"] = (str(buckling.get("mode", "adaptive")) if isinstance(buckling, dict) else "none")
