@@ -451,18 +451,25 @@ HESSIAN_CHOICE_M = 1e-3
 FORCE_ROUNDOFF_REL = 1e-10
 
 
+def _hessian_choices(key: str, term: str):
+    """A fixed sheet built with solver.<key> projected and gauss_newton: the two simulations, each
+    one's `project` of its <term> term, and that of the default build."""
+    sims = {h: build_sim("scene=sheet_on_sphere", "mode=nonadaptive", "frames=1", f"solver.{key}={h}")
+            for h in ("projected", "gauss_newton")}
+    kinds = {h: [t.project for t in sim.terms if t.name == term] for h, sim in sims.items()}
+    default = build_sim("scene=sheet_on_sphere", "mode=nonadaptive", "frames=1")
+    return sims, kinds, [t.project for t in default.terms if t.name == term]
+
+
 def test_the_gauss_newton_bending_hessian_is_the_solver_s_choice():
     """solver.bending_hessian=gauss_newton gives the bending term the Gauss-Newton Hessian (the
     default, BENDING_HESSIAN_DEFAULT) and projected the projected one; the forces are the same, and
     a frame of each stays finite and close to the other's."""
     from cloth.physics.membrane import GAUSS_NEWTON
 
-    sims = {h: build_sim("scene=sheet_on_sphere", "mode=nonadaptive", "frames=1", f"solver.bending_hessian={h}")
-            for h in ("projected", "gauss_newton")}
-    kinds = {h: [t.project for t in s.terms if t.name == "bending"] for h, s in sims.items()}
+    sims, kinds, default = _hessian_choices("bending_hessian", "bending")
     assert kinds["projected"] == [True] and kinds["gauss_newton"] == [GAUSS_NEWTON]
-    default = build_sim("scene=sheet_on_sphere", "mode=nonadaptive", "frames=1")
-    assert [t.project for t in default.terms if t.name == "bending"] == [GAUSS_NEWTON]
+    assert default == [GAUSS_NEWTON]
     forces, bent = {}, None
     for h, sim in sims.items():  # at the start state moved out of plane (flat, every hinge is at rest)
         if bent is None:
@@ -491,12 +498,9 @@ def test_the_gauss_newton_membrane_hessian_is_the_solver_s_option():
     from cloth.physics.membrane import GAUSS_NEWTON
     from experiments.build import ConfigError
 
-    sims = {h: build_sim("scene=sheet_on_sphere", "mode=nonadaptive", "frames=1", f"solver.membrane_hessian={h}")
-            for h in ("projected", "gauss_newton")}
-    kinds = {h: [t.project for t in s.terms if t.name == "membrane"] for h, s in sims.items()}
+    sims, kinds, default = _hessian_choices("membrane_hessian", "membrane")
     assert kinds["projected"] == [True] and kinds["gauss_newton"] == [GAUSS_NEWTON]
-    default = build_sim("scene=sheet_on_sphere", "mode=nonadaptive", "frames=1")
-    assert [t.project for t in default.terms if t.name == "membrane"] == [True]
+    assert default == [True]
     rng = np.random.default_rng(1)
     squeezed = None
     out = {}

@@ -49,7 +49,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from cloth.physics.membrane import GAUSS_NEWTON, project_psd
+from cloth.physics.membrane import GAUSS_NEWTON, add_skew, project_psd
 
 # A hinge whose y^2 + z^2 = |n_A|^2 |n_B|^2 falls below this (m^8) has a collapsed face in world
 # space: its angle is undefined and it exerts no force.
@@ -151,17 +151,6 @@ def _is_psd(H):
 
 
 @njit(cache=True)
-def _add_skew(H, r0, c0, v, s):
-    """H[r0:r0+3, c0:c0+3] += s [v]_x (accumulates into H)."""
-    H[r0, c0 + 1] -= s * v[2]
-    H[r0, c0 + 2] += s * v[1]
-    H[r0 + 1, c0] += s * v[2]
-    H[r0 + 1, c0 + 2] -= s * v[0]
-    H[r0 + 2, c0] -= s * v[1]
-    H[r0 + 2, c0 + 1] += s * v[0]
-
-
-@njit(cache=True)
 def angle_derivatives(a, b, c):
     """theta, gradient (9,) and Hessian (9, 9) with respect to (a, b, c); ok = False if degenerate.
 
@@ -201,12 +190,12 @@ def angle_derivatives(a, b, c):
         u[i] = (z * gy[i] - y * gz[i]) * inv
     # z Hy with Hy = -(gL gp^T + gp gL^T + p HL + L Hp); gL = (a/|a|, 0, 0), HL = (I - a a^T/|a|^2)/|a|
     zL = z * L
-    _add_skew(H, 0, 3, c, zL)   # -L Hp blocks: Hp[a,b] = -[c]x, Hp[b,c] = -[a]x, Hp[c,a] = -[b]x
-    _add_skew(H, 3, 0, c, -zL)
-    _add_skew(H, 3, 6, a, zL)
-    _add_skew(H, 6, 3, a, -zL)
-    _add_skew(H, 6, 0, b, zL)
-    _add_skew(H, 0, 6, b, -zL)
+    add_skew(H, 0, 3, c, zL)   # -L Hp blocks: Hp[a,b] = -[c]x, Hp[b,c] = -[a]x, Hp[c,a] = -[b]x
+    add_skew(H, 3, 0, c, -zL)
+    add_skew(H, 3, 6, a, zL)
+    add_skew(H, 6, 3, a, -zL)
+    add_skew(H, 6, 0, b, zL)
+    add_skew(H, 0, 6, b, -zL)
     for i in range(3):
         ahi = a[i] / L
         for j in range(3):

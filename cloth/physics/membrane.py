@@ -281,8 +281,8 @@ COLLAPSE_AREA_RATIO = 0.25
 
 
 @njit(cache=True)
-def _add_skew3(H, r0, c0, v, s):
-    """H[r0:r0+3, c0:c0+3] += s [v]_x (accumulates)."""
+def add_skew(H, r0, c0, v, s):
+    """H[r0:r0+3, c0:c0+3] += s [v]_x (accumulates into H; also the hinge Hessian's, cloth.physics.bending)."""
     H[r0, c0 + 1] -= s * v[2]
     H[r0, c0 + 2] += s * v[1]
     H[r0 + 1, c0] += s * v[2]
@@ -321,13 +321,13 @@ def area_barrier_into(x0, x1, x2, area, kappa, exact, grad, hess):
             hess[i, j] += ka * d[i] * d[j]
     if exact:  # - A kappa r d2J, built in (e1, e2) and mapped to (x0, x1, x2)
         N = np.zeros((3, 6))
-        _add_skew3(N, 0, 0, e2, -1.0)
-        _add_skew3(N, 0, 3, e1, 1.0)
+        add_skew(N, 0, 0, e2, -1.0)
+        add_skew(N, 0, 3, e1, 1.0)
         Pn = np.eye(3) - np.outer(nh, nh)
         He = N.T @ Pn @ N / nn
         # C: n^ . (a x b) = a . (b x n^) = -a^T [n^]x b  for a = de1, b = de2'
-        _add_skew3(He, 0, 3, nh, -1.0)
-        _add_skew3(He, 3, 0, nh, 1.0)
+        add_skew(He, 0, 3, nh, -1.0)
+        add_skew(He, 3, 0, nh, 1.0)
         He *= -ka * r / (2.0 * area)
         for a in range(2):
             for b in range(2):
