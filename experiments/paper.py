@@ -14,7 +14,8 @@ adaptive's; the preset's own fixed mesh when the accuracy study is not run or fi
 and the crowd inherit the dancer's factor), ``ablation_buckling`` (the drape test) and
 ``ablation_buckling_dancer`` (the standing dancer).
 ``--full`` adds what the default job leaves out to fit in about 90 minutes on 2 cores: the
-anticipation ablation (five seeds) and the sweeps of nu_out, k, T and the margin. Others on
+accuracy study's integration points (ACCURACY_FULL_ONLY), the anticipation ablation (five seeds)
+and the sweeps of nu_out, k, T and the margin. Others on
 request (``--studies``), among them ``crowd_scaling`` (beyond the paper: adaptive and
 view-dependent crowds of 1, 10 and 100 dancers; hours at scale=small, see docs/studies.md).
 
@@ -71,6 +72,10 @@ SINGLE_SCENES = "karate,solo_dancer"
 CROWD_SCENE = "multiple_dancers"
 # Table 1's points in the main job: its fixed mesh (the baseline), then these (the preset's own).
 TABLE1_POINTS = ("adaptive", "viewdep", "viewdep_nofloor")
+# The accuracy study's points that only --full runs: the integration points (the Hessian choices
+# and the steps per frame, compared window by window with the points they vary), twelve runs that
+# would take the default job past 90 minutes on 2 cores.
+ACCURACY_FULL_ONLY = ("bending/", "membrane/", "steps/")
 # A still (camera view by view factor beside an outside view) of every single-character run every
 # this many frames, for the report's stills of each mode; I/O, so outside the timed sim_s.
 TABLE1_STILLS_EVERY = 50
@@ -137,6 +142,8 @@ def study_parts(study: str, args, out: Path | None = None) -> list[tuple[str, li
     """(folder, extra overrides) of each multirun a study of the main job is made of: table1 is
     split into its single characters (``--repeats``) and its crowd (``--crowd-repeats``), its
     non-adaptive row the fixed mesh of adaptive's quality when the accuracy study ran first."""
+    if study == "accuracy" and not getattr(args, "full", False):
+        return [(study, [f"points='{','.join(accuracy_points(full=False))}'"])]
     if study != "table1":
         return [(study, [])]
     crowd_jobs = min(2, args.jobs_cores)
@@ -149,6 +156,13 @@ def study_parts(study: str, args, out: Path | None = None) -> list[tuple[str, li
                         *chosen, points, f"output.stills_every={TABLE1_STILLS_EVERY}"]),
             ("table1_crowd", [f"hydra.sweeper.params.scene='{CROWD_SCENE}'", f"repeats={args.crowd_repeats}",
                               f"crowd_jobs={crowd_jobs}", *chosen, points])]
+
+
+def accuracy_points(full: bool) -> list[str]:
+    """The accuracy study's points (conf/experiment/accuracy.yaml), without ACCURACY_FULL_ONLY's
+    unless `full`."""
+    points = yaml.safe_load((ROOT / "conf" / "experiment" / "accuracy.yaml").read_text())["points"].split(",")
+    return [p for p in points if full or not p.startswith(ACCURACY_FULL_ONLY)]
 
 
 def plan(args) -> dict[str, int | None]:

@@ -368,6 +368,22 @@ def test_table1_baseline_is_the_accuracy_study_s_equal_quality_mesh(tmp_path):
     assert paper.equal_quality_point(tmp_path, logs.append) == "nonadaptive"  # the preset's own mesh
 
 
+def test_the_default_main_job_leaves_the_accuracy_studys_integration_points_to_full(tmp_path):
+    """Without --full the accuracy study runs every point but the integration points (bending/,
+    membrane/, steps/), and the planned count says so; --full runs the preset's whole list."""
+    from experiments import paper
+
+    every = compose_config("+experiment=accuracy").points.split(",")
+    integration = [p for p in every if p.startswith(paper.ACCURACY_FULL_ONLY)]
+    assert len(integration) == 12 and "reference" in every and "viewdep" in every
+    [(folder, extra)] = paper.study_parts("accuracy", paper.parse_args(["--out", str(tmp_path)]), tmp_path)
+    cfg = compose_config("+experiment=accuracy", *extra)
+    assert folder == "accuracy" and cfg.points.split(",") == [p for p in every if p not in integration]
+    assert paper.study_parts("accuracy", paper.parse_args(["--full"]), tmp_path) == [("accuracy", [])]
+    default = paper.plan(paper.parse_args(["--studies", "accuracy"]))["accuracy"]
+    assert default == paper.plan(paper.parse_args(["--full"]))["accuracy"] - len(integration)
+
+
 def test_table1_baseline_at_the_interpolated_factor_of_the_millimetre_windows(tmp_path):
     """With the accuracy study's equal_quality.csv, Table 1's non-adaptive row is the fixed mesh at
     its interpolated factor (conf/point/fixed_factor), in both parts of the job."""

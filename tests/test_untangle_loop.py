@@ -9,7 +9,8 @@ from helpers import COTTON, build_sim, count_crossings
 
 import cloth.simulation as simulation
 from cloth.collision.meshobstacle import TriangleMeshObstacle, mesh_obstacle_triangles
-from cloth.collision.untangle import find_intersections
+from cloth.collision.untangle import find_intersections, obstacle_crossings
+from cloth.remeshing.adaptive import keep_obstacles_uncrossed
 from cloth.scenes.registry import build_scene
 
 LAYERED = ("scene=layered_sheets", "output.rerun=false")
@@ -141,3 +142,27 @@ def test_a_step_whose_collision_pass_gave_up_is_followed_by_an_untangling(monkey
     assert [r["steps_rejected"] for r in (records[0], records[2], records[3])] == [0, 0, 0]
     assert records[2]["dt_min_s"] == pytest.approx(h, rel=1e-12)
     assert sim.time == pytest.approx(4 * sim.scene.frame_time, rel=1e-12)
+
+
+def test_a_remesh_move_that_carries_a_face_into_a_mesh_obstacle_is_put_back():
+    """keep_obstacles_uncrossed: a move (the push-out's, the pop filter's) that makes a face of the
+    moved node cross a triangle-mesh obstacle is undone (every moved node of the crossing faces); one
+    that adds no crossing is kept."""
+    scene = build_scene("mesh_obstacle", COTTON, resolution=4)
+    (sphere,) = [o for o in scene.obstacles if isinstance(o, TriangleMeshObstacle)]
+    x = scene.mesh.node_x
+    x[:, :2] += SHEET_SHIFT
+    x[:, 2] = sphere.positions[:, 2].max() + 2 * scene.thickness  # just above the sphere's top
+    sim = simulation.Simulation(scene)
+    (ox, of), = mesh_obstacle_triangles([sphere])
+    x_from = x.copy()
+    assert len(obstacle_crossings(sim.mesh.face_nodes, x, [(ox, of)])) == 0
+    top = np.argmin(sphere.query(x)[0])  # the node nearest the sphere
+    x[top, 2] -= 10 * scene.thickness  # carried through the cap: its faces cross the sphere
+    kept = np.argmax(np.linalg.norm(x - x[top], axis=1))  # far from it: shares no face with it
+    x[kept, 2] += scene.thickness  # moved away from the sphere: no crossing
+    assert len(obstacle_crossings(sim.mesh.face_nodes, x, [(ox, of)])) > 0
+    assert keep_obstacles_uncrossed(sim, x_from) == 1
+    assert np.array_equal(x[top], x_from[top]) and x[kept, 2] > x_from[kept, 2]
+    assert len(obstacle_crossings(sim.mesh.face_nodes, x, [(ox, of)])) == 0
+    assert keep_obstacles_uncrossed(sim, x_from) == 0  # nothing crosses: nothing put back

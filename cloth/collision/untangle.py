@@ -183,6 +183,26 @@ def find_intersections(face_nodes: np.ndarray, x: np.ndarray, node_g: np.ndarray
     return pairs[crosses], length[crosses], depth[crosses]
 
 
+def obstacle_crossings(face_nodes: np.ndarray, x: np.ndarray, obstacles, faces: np.ndarray | None = None) -> np.ndarray:
+    """(K, 2) pairs (cloth face, obstacle triangle) that cross: `faces` of the cloth (all if None)
+    against the triangles of `obstacles` ([(positions, faces), ...], numbered in that order)."""
+    faces = np.arange(face_nodes.shape[0]) if faces is None else np.asarray(faces, dtype=np.int64)
+    if not len(obstacles) or faces.size == 0:
+        return np.empty((0, 2), dtype=np.int64)
+    parts_x, parts_f, n = [x], [face_nodes[faces]], x.shape[0]
+    for ox, of in obstacles:
+        parts_f.append(np.asarray(of, dtype=np.int64) + n)
+        parts_x.append(np.asarray(ox, dtype=np.float64))
+        n += parts_x[-1].shape[0]
+    fn, xa = np.vstack(parts_f).astype(np.int64), np.vstack(parts_x)
+    lo, hi = face_boxes(fn, xa)
+    F = faces.size
+    cand = cross_overlaps(lo[:F], hi[:F], lo[F:], hi[F:]) + np.array([0, F])
+    crosses = _crossings(cand, fn, xa, np.zeros((0, 3)), False)[0]
+    hit = cand[crosses]
+    return np.column_stack([faces[hit[:, 0]], hit[:, 1] - F])
+
+
 def _components(face_nodes, pairs, n_nodes):
     """Components of the nodes of crossing faces, joined within each crossing face; returns the
     list of node arrays and each node's component index (-1 outside)."""

@@ -24,6 +24,9 @@ REMESH_RECORD = {"remeshed": 0, "remesh_splits": 0, "remesh_collapses": 0, "reme
                  # nodes exempt from obstacle contact after the remesh (made inside an obstacle, or still
                  # inside since: cloth.remeshing.adaptive.mark_passing)
                  "remesh_nodes_passing": 0,
+                 # nodes put back where the remesh left them: their push-out or pop-filter move made a face
+                 # cross a triangle-mesh obstacle (cloth.remeshing.adaptive.keep_obstacles_uncrossed)
+                 "remesh_obstacle_moves_undone": 0,
                  "pop_energy_before_j": float("nan"), "pop_energy_after_j": float("nan"),
                  "pop_iterations": 0,
                  "pop_reverted": 0,  # pop filter rounds whose minimum lay past a node's edges: left as remeshed
