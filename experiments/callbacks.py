@@ -99,6 +99,9 @@ def measure_accuracy(sweep_dir: Path, log=print, sync: dict | None = None) -> in
             starts = members[:n] if n > 1 else ref  # every window from each of the first n members' states
             for run in ([ref] if sync.get("reference", True) else []) + targets:
                 source = f"{ref.name}'s states" if n == 1 else f"{len(starts)} members' states"
+                if measured_already(run, starts, opts):
+                    log(f"sync: {run.name} measured already from {source} (its sync.json is newer than the runs)")
+                    continue
                 log(f"sync: {run.name} restarted from {source}")
                 try:
                     table = evaluate_sync(run, starts, **opts, log=log)
@@ -111,6 +114,24 @@ def measure_accuracy(sweep_dir: Path, log=print, sync: dict | None = None) -> in
             if checks:
                 reference_error(ref, {cfgs[c]["reference_check"]: c for c in checks}, opts, log)
     return measured
+
+
+def measured_already(run: Path, starts, opts: dict) -> bool:
+    """Whether `run`'s sync.json holds the re-synchronised error with these options from these
+    reference runs and was written after all of them finished (a main job run again in its folder,
+    experiments.paper: the windows are not simulated again)."""
+    starts = [starts] if isinstance(starts, Path) else list(starts)
+    path = run / "sync.json"
+    try:
+        done = json.loads(path.read_text())
+        written = path.stat().st_mtime_ns
+        finished = max((r / "summary.json").stat().st_mtime_ns for r in [run, *starts])
+    except (OSError, ValueError):
+        return False
+    same = all(done.get(k) == opts[k] for k in ("every", "horizon", "before_cut", "resolution_scale", "restart")
+               if k in opts)
+    return (same and done.get("reference") == str(starts[0].resolve()) and done.get("members") == len(starts)
+            and written > finished)
 
 
 # The perturbed restart's displacement: 0.1 mm, a thousandth of the study's edges (centimetres) and far

@@ -154,7 +154,7 @@ TOP_LEVEL_KEYS = frozenset({"camera", "scene", "mode", "material", "solver", "ou
 SCENE_KEYS = frozenset({"name", "effects", "frames", "params", "scales", "view"})
 # output.* (conf/output/default.yaml): what each is, checked before any run.
 OUTPUT_INTS = ("obj_every", "stills_every", "states_every", "checkpoint_every")  # frames, 0: never
-OUTPUT_BOOLS = ("rerun", "progress")
+OUTPUT_BOOLS = ("rerun", "progress", "resume")
 
 
 def check_output(cfg: DictConfig) -> None:

@@ -1,5 +1,5 @@
 """Where a crowd's characters run: each is an independent simulation, a task `task(*args)` that
-writes its own run folder (experiments.launch.run_character, experiments.resume.resume_character).
+writes its own run folder (experiments.launch.run_character, experiments.resuming.resume_character).
 
 `crowd_backend` (experiments.build.CROWD_BACKENDS) picks how they run, `crowd_jobs` how many at once.
 The default, ``auto``, is ``ray`` when Ray is installed (the ``ray`` extra) and there is a Ray to

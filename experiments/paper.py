@@ -29,7 +29,11 @@ into ``<out>/figures/``, and the paths are printed. Before the studies, a two-fr
 
 A study that fails (a run that diverges, a killed process) does not stop the others: its run
 folders stay as written, the aggregation reports the broken ones by name and skips them, and the
-job exits non-zero at the end. At scale=small on 2 cores the whole job took 83.5 minutes from a
+job exits non-zero at the end. A killed job continues where it stopped when run again with the
+same arguments and ``--out``: every run is made with ``output.resume=true`` (a run that completed
+or diverged is not run again, one with a checkpoint resumes from it, every ``output.checkpoint_every``
+frames; experiments.resuming.continue_in_place), and each study's measurements and the figures
+are made again from the run folders. At scale=small on 2 cores the whole job took 83.5 minutes from a
 clean clone (README: Quick start); at scale=paper expect a day or a cluster (docs/studies.md: Scale).
 """
 
@@ -85,7 +89,7 @@ def study_command(study: str, out: Path, scale: str, jobs: int, frames: int | No
                   folder: str | None = None) -> list[str]:
     """The Hydra multirun command of one study (into out/<folder or study>)."""
     cmd = [sys.executable, "-m", "experiments.run", f"experiment={study}", f"scale={scale}",
-           f"hydra.sweep.dir={out / (folder or study)}", f"hydra.launcher.n_jobs={jobs}"]
+           f"hydra.sweep.dir={out / (folder or study)}", f"hydra.launcher.n_jobs={jobs}", "output.resume=true"]
     if frames is not None:
         cmd.append(f"frames={frames}")
     return cmd + list(extra)
@@ -183,7 +187,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--jobs", type=int, default=1,
                     help="runs at once (local processes; default 1: timed runs do not compete; with N, each run "
                          "gets cores // N numba threads)")
-    ap.add_argument("--out", type=Path, default=None, help="default results/paper/<timestamp>")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="default results/paper/<timestamp>; the folder of a killed job: it continues there")
     ap.add_argument("--studies", nargs="+", default=None, metavar="STUDY",
                     help=f"any of {', '.join(STUDIES)} (default: {' '.join(DEFAULT_STUDIES)})")
     ap.add_argument("--full", action="store_true",

@@ -36,6 +36,7 @@ from cloth.signals import Terminated, sigterm_interrupts
 from cloth.simulation import SimulationDiverged
 from experiments.build import ConfigError, command_line_wins, plain_experiment
 from experiments.launch import run_from_config, share_cores
+from experiments.resuming import continue_in_place
 
 # The config tree, as an absolute path: `cloth-run` (a console script) imports this module as
 # experiments.run, and Hydra would then look for a relative config_path as a Python package.
@@ -65,7 +66,9 @@ def main(cfg: DictConfig) -> None:
         # what the command line says wins over the scene's scale preset (recorded so in config.yaml)
         cfg = command_line_wins(cfg, hydra_cfg.overrides.task)
         with sigterm_interrupts():  # a scheduler's SIGTERM stops the run as Ctrl-C does, its records written
-            summary = run_from_config(cfg, out_dir)
+            summary = continue_in_place(cfg, out_dir) if cfg.output.get("resume") is True else None
+            if summary is None:
+                summary = run_from_config(cfg, out_dir)
     except ConfigError as exc:
         config_error(exc)
     except KeyboardInterrupt as exc:  # Ctrl-C or a scheduler's SIGTERM: the records are written

@@ -316,6 +316,7 @@ def test_the_crowd_scaling_study_is_a_preset_the_main_job_runs_only_on_request(t
     cmd = paper.study_command("crowd_scaling", tmp_path, args.scale, args.jobs, args.frames, extra, folder)
     assert "experiment=crowd_scaling" in cmd and "+experiment=crowd_scaling" not in cmd
     assert f"hydra.sweep.dir={tmp_path / 'crowd_scaling'}" in cmd
+    assert "output.resume=true" in cmd  # a killed main job continues in its --out (experiments.resuming)
 
 
 # Made-up crowd runs: adaptive's time per frame 0.5 n (1 + seed) s for n dancers (frames of 0.25

@@ -256,3 +256,36 @@ def test_read_journal_of_an_interrupted_run_is_unaffected(tmp_path):
     (run / "frames.jsonl").write_text('{"frame": 1}\n')
     manifest.remove_stale_temp_files(run)
     assert read_journal(run / "frames.jsonl")["frame"].tolist() == [1]
+
+
+def test_output_resume_skips_a_completed_run_resumes_a_killed_one_and_refuses_another_config(tmp_path, monkeypatch,
+                                                                                              capsys):
+    """output.resume=true (what experiments.paper sets, so that a killed main job continues with the
+    same --out): a folder holding nothing runs from the start; one whose run was killed after a
+    checkpoint continues from it; one whose run completed is not run again; a folder holding a
+    run of another config is refused naming the key that differs, before any work."""
+    from cloth.simulation import Simulation
+    from experiments.build import ConfigError
+    from experiments.resuming import continue_in_place
+
+    run = tmp_path / "run"
+    asked = ("scene=hanging_sheet", "mode=adaptive", "frames=5", "output.checkpoint_every=1", *NO_OUTPUT)
+    cfg = compose_config(*asked, "output.resume=true")
+    assert continue_in_place(cfg, run) is None  # nothing there: the caller runs it from the start
+    with monkeypatch.context() as m:
+        _sigterm_at_call(m, 3)  # frames 1 and 2 done and checkpointed
+        with pytest.raises(Terminated):
+            run_from_config(cfg, run)
+    summary = continue_in_place(cfg, run)
+    assert summary["status"] == "completed" and summary["frames_completed"] == 5
+    assert pd.read_parquet(run / "frames.parquet")["frame"].tolist() == [1, 2, 3, 4, 5]
+    done = (run / "frames.parquet").stat().st_mtime_ns
+    monkeypatch.setattr(Simulation, "advance_frame", lambda self: pytest.fail("a completed run was run again"))
+    capsys.readouterr()
+    again = continue_in_place(compose_config(*asked, "output.resume=true", "output.progress=true"), run)
+    assert again["status"] == "completed" and "not run again" in capsys.readouterr().out
+    assert (run / "frames.parquet").stat().st_mtime_ns == done
+    with pytest.raises(ConfigError, match=r"output\.resume: .* another config \(frames: 5 there, 6 now\)"):
+        continue_in_place(compose_config(*asked[:2], "frames=6", *asked[3:], "output.resume=true"), run)
+    with pytest.raises(ConfigError, match=r"^seed: "):  # a bad value is named as without output.resume
+        continue_in_place(compose_config(*asked, "seed=-1", "output.resume=true"), run)

@@ -91,3 +91,29 @@ def test_points_closer_than_the_references_own_error_are_not_ranked():
     err, lo_s, hi_s = pd.Series([9.0, 10.0]), pd.Series([8.8, 9.8]), pd.Series([9.2, 10.2])
     assert equal_quality_fixed(g, "error_px", err, lo_s, hi_s) is None
     assert equal_quality_fixed(g, "error_px", err, lo_s, hi_s, min_difference=RANK_FACTOR * 0.5) == "f"
+
+
+def test_a_study_measured_again_skips_the_windows_it_has_measured(study):
+    """The callback run again on the same folders (experiments.paper continued in its --out) does
+    not simulate a run's windows again while its sync.json is newer than the run and its
+    reference and has the same options; a run finished since is measured again."""
+    import os
+
+    from experiments.callbacks import measured_already
+
+    base, _ = study
+    run, ref = base / "3_fixed", base / "0_ref"
+    opts = {k: v for k, v in SYNC.items() if k not in ("reference", "members")}
+    assert measured_already(run, ref, opts)
+    assert not measured_already(run, ref, {**opts, "horizon": 3})  # other options
+    assert not measured_already(run, base / "1_fine", opts)  # another reference
+    log = []
+    measure_accuracy(base, log=log.append, sync=SYNC)
+    assert any("3_fixed measured already" in line for line in log)
+    finished = (run / "summary.json").stat()
+    later = (run / "sync.json").stat().st_mtime_ns + 10**9
+    os.utime(run / "summary.json", ns=(later, later))  # the run finished after its measurement
+    try:
+        assert not measured_already(run, ref, opts)
+    finally:  # the module's study as it was
+        os.utime(run / "summary.json", ns=(finished.st_atime_ns, finished.st_mtime_ns))
