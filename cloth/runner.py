@@ -256,9 +256,10 @@ HIDDEN_RGB = np.array([0.9, 0.15, 0.1])  # not visible: red, lighter where the v
 
 
 def _view(sim):
-    """(camera now, per-face RGB by view factor) or (None, None) without a camera."""
+    """(camera now, per-face RGB by view factor, per-face spatial view factor) or (None, None, None)
+    without a camera."""
     if sim.scene.camera is None:
-        return None, None
+        return None, None, None
     cam = sim.scene.camera.camera_at(sim.time)
     p = getattr(sim.remesher, "view", None) or ViewParams()
     d, front = face_view_data(cam, *face_geometry(sim.mesh))
@@ -266,13 +267,13 @@ def _view(sim):
     visible = (d == 0) & front
     shade = HIDDEN_RGB * (0.4 + 0.6 * nu[:, None]) + 0.6 * (1 - nu[:, None]) * np.array([1.0, 0.8, 0.8])
     colors = np.where(visible[:, None], VISIBLE_RGB, np.clip(shade, 0, 1))
-    return cam, colors
+    return cam, colors, nu
 
 
 def write_still(sim, path: Path) -> Path:
     """stills/frame_NNNNN.png: the camera's view coloured by view factor and an outside view
     with the frustum (cloth.io.stills); the scene must have a camera."""
-    camera, colors = _view(sim)
+    camera, colors, _ = _view(sim)
     obstacles = sim.obstacle_set.obstacles if sim.contact is not None else ()
     extra = [(obstacle_triangles(ob), OBSTACLE_RGB) for ob in obstacles if ob.name != "plane"]
     return render_still(path, camera, mesh_triangles(sim.mesh), colors, extra=extra,
@@ -316,8 +317,9 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
     journal = open_journal(out_dir / JOURNAL_FILE, rows)
     scene = sim.scene
     obstacles = sim.obstacle_set.obstacles if sim.contact is not None else ()
-    camera, colors = _view(sim)
-    recorder.log_frame(sim.frame, sim.time, sim.mesh, face_colors=colors, obstacles=obstacles, camera=camera)
+    camera, colors, nu = _view(sim)
+    recorder.log_frame(sim.frame, sim.time, sim.mesh, face_colors=colors, obstacles=obstacles, camera=camera,
+                       view_factor=nu)
     if states_every > 0 and sim.frame % states_every == 0:
         save_state(out_dir / "states" / f"frame_{sim.frame:05d}.npz", sim.mesh, sim.frame, sim.time, obstacles,
                    scene.handles, restart=True)
@@ -328,8 +330,9 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
         for _ in range(n_frames - len(rows)):
             row = sim.advance_frame()
             t0 = time.perf_counter()
-            camera, colors = _view(sim)
-            recorder.log_frame(sim.frame, sim.time, sim.mesh, face_colors=colors, obstacles=obstacles, camera=camera)
+            camera, colors, nu = _view(sim)
+            recorder.log_frame(sim.frame, sim.time, sim.mesh, face_colors=colors, obstacles=obstacles, camera=camera,
+                               view_factor=nu)
             if obj_every > 0 and sim.frame % obj_every == 0:
                 save_obj(out_dir / "obj" / f"frame_{sim.frame:05d}.obj", sim.mesh)
             if states_every > 0 and sim.frame % states_every == 0:

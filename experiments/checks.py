@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import importlib.util
 import inspect
 import math
 import re
@@ -153,7 +154,7 @@ TOP_LEVEL_KEYS = frozenset({"camera", "scene", "mode", "material", "solver", "ou
 # The keys of a scene (conf/scene/*.yaml): the others are refused.
 SCENE_KEYS = frozenset({"name", "effects", "frames", "params", "scales", "view"})
 # output.* (conf/output/default.yaml): what each is, checked before any run.
-OUTPUT_INTS = ("obj_every", "stills_every", "states_every", "checkpoint_every")  # frames, 0: never
+OUTPUT_INTS = ("obj_every", "stills_every", "states_every", "checkpoint_every", "usd_every")  # frames, 0: never
 OUTPUT_BOOLS = ("rerun", "progress", "resume")
 
 
@@ -168,6 +169,9 @@ def check_output(cfg: DictConfig) -> None:
             _check_bool(value, f"output.{key}")
         else:
             _check_int(value, f"output.{key}", 0, " (frames; 0: never)")
+    if out.get("usd_every") and importlib.util.find_spec("pxr") is None:
+        raise ConfigError("output.usd_every: writing a USD stage needs the usd-core package "
+                          "(pip install -e '.[usd]'), which is not installed")
 
 
 _OVERRIDE = re.compile(r"(\+\+|\+|~)?([A-Za-z_][\w.]*)(?:@[\w.]*)?(=.*)?")

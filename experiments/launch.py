@@ -17,7 +17,7 @@ import yaml
 from omegaconf import DictConfig, OmegaConf
 
 from cloth.io.manifest import environment_manifest, write_json_atomic, write_text_atomic
-from cloth.io.recorder import RerunRecorder
+from cloth.io.recorder import Recorders, RerunRecorder
 from cloth.simulation import SimulationDiverged
 from experiments.build import ConfigError, build, crowd_backend, crowd_size, resolved_record
 from experiments.crowd import SHARE_ENV, run_characters, where
@@ -29,12 +29,22 @@ from experiments.crowd import SHARE_ENV, run_characters, where
 
 
 def make_recorder(cfg: DictConfig, out_dir: Path, root: str = "world", recording_id=None, log_camera=True,
-                  name: str = "recording.rrd"):
-    """The run's Rerun recorder (out_dir/name), or None with output.rerun=false."""
-    if not cfg.output.rerun:
+                  name: str = "recording.rrd", frame_time: float | None = None, resume_from: int | None = None):
+    """The run's recorders: Rerun (out_dir/name) with output.rerun, a USD stage (out_dir/cloth.usdc,
+    cloth.io.usd) with output.usd_every > 0 and the scene's `frame_time`, continued after frame
+    `resume_from` when resuming; None when neither."""
+    recorders = []
+    if cfg.output.rerun:
+        recorders.append(RerunRecorder(out_dir / name, app_id=f"cloth_{cfg.scene.name}", root=root,
+                                       recording_id=recording_id, log_camera=log_camera))
+    usd_every = int(cfg.output.get("usd_every", 0) or 0)
+    if usd_every > 0 and frame_time is not None:
+        from cloth.io.usd import USD_FILE, UsdRecorder  # noqa: PLC0415 - pxr only when asked for
+
+        recorders.append(UsdRecorder(out_dir / USD_FILE, usd_every, frame_time, resume_from=resume_from))
+    if not recorders:
         return None
-    return RerunRecorder(out_dir / name, app_id=f"cloth_{cfg.scene.name}", root=root,
-                         recording_id=recording_id, log_camera=log_camera)
+    return recorders[0] if len(recorders) == 1 else Recorders(recorders)
 
 
 RESOLVED = "resolved.yaml"  # next to config.yaml: the values the run used (experiments.build.resolved_record)
@@ -78,7 +88,7 @@ def run_character(config_yaml: str, character: int, out_dir: str, recording_id: 
     out.mkdir(parents=True, exist_ok=True)
     write_resolved(built, out)
     recorder = make_recorder(cfg, out, root=f"world/dancer_{character:02d}", recording_id=recording_id,
-                             log_camera=character == 0)
+                             log_camera=character == 0, frame_time=sim.scene.frame_time)
     try:
         return run(sim, n_frames, out, recorder=recorder, obj_every=int(cfg.output.obj_every), progress=False,
                    stills_every=int(cfg.output.get("stills_every", 0)),
@@ -142,7 +152,8 @@ def run_from_config(cfg: DictConfig, out_dir: Path) -> dict:
     every = checkpoint_every(cfg)
     recording_id = str(uuid.uuid4())
     write_inputs(cfg, out_dir, recording_id, built)
-    return run(sim, n_frames, out_dir, recorder=make_recorder(cfg, out_dir, recording_id=recording_id),
+    recorder = make_recorder(cfg, out_dir, recording_id=recording_id, frame_time=sim.scene.frame_time)
+    return run(sim, n_frames, out_dir, recorder=recorder,
                obj_every=int(cfg.output.obj_every),
                progress=bool(cfg.output.progress), stills_every=int(cfg.output.get("stills_every", 0)),
                states_every=int(cfg.output.get("states_every", 1)), checkpoint_every=every)

@@ -90,7 +90,8 @@ def _continue(cfg: DictConfig, run_dir: Path, ckpt, recording_id, progress: bool
     else:
         (run_dir / "frames.parquet").unlink(missing_ok=True)
     recorder = make_recorder(cfg, run_dir, root=root, recording_id=recording_id, log_camera=log_camera,
-                         name=f"recording_from_{ckpt.frame:05d}.rrd")
+                             name=f"recording_from_{ckpt.frame:05d}.rrd", frame_time=ckpt.sim.scene.frame_time,
+                             resume_from=ckpt.frame)
     return run(ckpt.sim, run_frames(cfg), run_dir, recorder=recorder, progress=progress, rows=ckpt.rows, **options)
 
 

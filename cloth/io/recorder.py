@@ -23,8 +23,9 @@ class Recorder:
     def log_static(self, name: str, vertices, faces, color=None) -> None:
         pass
 
-    def log_frame(self, frame: int, time_s: float, mesh: Mesh, face_colors=None, obstacles=(), camera=None) -> None:
-        pass
+    def log_frame(self, frame: int, time_s: float, mesh: Mesh, face_colors=None, obstacles=(), camera=None,
+                  view_factor=None) -> None:
+        """`face_colors` (F, 3) RGB by view factor, `view_factor` (F,) its value (with a camera)."""
 
     def close(self) -> None:
         pass
@@ -38,6 +39,26 @@ class Recorder:
 
 
 NullRecorder = Recorder
+
+
+class Recorders(Recorder):
+    """Several recorders as one (a Rerun recording and a USD stage): each call goes to each."""
+
+    def __init__(self, recorders):
+        self.recorders = list(recorders)
+
+    def log_static(self, name, vertices, faces, color=None):
+        for r in self.recorders:
+            r.log_static(name, vertices, faces, color)
+
+    def log_frame(self, frame, time_s, mesh, face_colors=None, obstacles=(), camera=None, view_factor=None):
+        for r in self.recorders:
+            r.log_frame(frame, time_s, mesh, face_colors=face_colors, obstacles=obstacles, camera=camera,
+                        view_factor=view_factor)
+
+    def close(self):
+        for r in self.recorders:
+            r.close()
 
 
 def _rgba(colors) -> np.ndarray:
@@ -76,7 +97,7 @@ class RerunRecorder(Recorder):
             vertex_positions=np.asarray(vertices, np.float32), triangle_indices=np.asarray(faces, np.uint32),
             albedo_factor=color or OBSTACLE_COLOR), static=True)
 
-    def log_frame(self, frame, time_s, mesh, face_colors=None, obstacles=(), camera=None):
+    def log_frame(self, frame, time_s, mesh, face_colors=None, obstacles=(), camera=None, view_factor=None):
         rr = self.rr
         self.rec.set_time("frame", sequence=int(frame))
         self.rec.set_time("sim_time", duration=float(time_s))
