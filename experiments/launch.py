@@ -41,7 +41,8 @@ def make_recorder(cfg: DictConfig, out_dir: Path, root: str = "world", recording
     if usd_every > 0 and frame_time is not None:
         from cloth.io.usd import USD_FILE, UsdRecorder  # noqa: PLC0415 - pxr only when asked for
 
-        recorders.append(UsdRecorder(out_dir / USD_FILE, usd_every, frame_time, resume_from=resume_from))
+        recorders.append(UsdRecorder(out_dir / USD_FILE, usd_every, frame_time, resume_from=resume_from,
+                                     log_camera=log_camera))
     if not recorders:
         return None
     return recorders[0] if len(recorders) == 1 else Recorders(recorders)
@@ -117,7 +118,16 @@ def run_crowd(cfg: DictConfig, out_dir: Path, dancers: int) -> dict:
         _, summary = combine_crowd(dirs, out_dir, errors=errors, extra={
             "crowd_backend": backend, "crowd_ran_in": where(backend, jobs, len(args)),
             "workers": [workers.get(i) for i in range(dancers)]})
+        crowd_stage(cfg, out_dir, dirs, first.sim.scene.frame_time)
     return summary
+
+
+def crowd_stage(cfg: DictConfig, out_dir: Path, dirs, frame_time: float) -> None:
+    """With output.usd_every, the crowd's stage (crowd.usda) over its characters' (cloth.io.usd)."""
+    if int(cfg.output.get("usd_every", 0) or 0) > 0:
+        from cloth.io.usd import CROWD_USD_FILE, write_crowd_stage  # noqa: PLC0415 - pxr only when asked for
+
+        write_crowd_stage(out_dir / CROWD_USD_FILE, dirs, frame_time)
 
 
 def threads_per_run(cores: int, runs_at_once: int) -> int:

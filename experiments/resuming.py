@@ -19,7 +19,7 @@ from cloth.runner import combine_crowd, run
 from cloth.simulation import SimulationDiverged
 from experiments.build import ConfigError, build, crowd_backend, crowd_size, run_frames
 from experiments.crowd import run_characters, where
-from experiments.launch import checkpoint_every, make_recorder, run_character
+from experiments.launch import checkpoint_every, crowd_stage, make_recorder, run_character
 
 
 class ResumeError(RuntimeError):
@@ -143,6 +143,7 @@ def resume_crowd(cfg: DictConfig, run_dir: Path, dancers: int) -> dict:
         _, summary = combine_crowd(dirs, run_dir, errors={todo[k]: e for k, e in errors.items()}, extra={
             "crowd_backend": backend, "crowd_ran_in": where(backend, jobs, len(args)),
             "workers": [workers.get(i) for i in range(dancers)]})
+        crowd_stage(cfg, run_dir, dirs, float(cfg.scene.params.frame_time))
     return summary
 
 

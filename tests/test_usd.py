@@ -133,3 +133,19 @@ def test_a_run_resumed_from_its_checkpoint_continues_its_stage(tmp_path, monkeyp
         assert np.abs(np.asarray(cloth.GetPointsAttr().Get(frame)) - state["node_x"]).max() < FLOAT32_M
         assert np.array_equal(np.asarray(cloth.GetFaceVertexIndicesAttr().Get(frame)).reshape(-1, 3),
                               state["face_nodes"])
+
+
+def test_a_crowd_writes_one_stage_per_character_and_one_that_holds_them(tmp_path):
+    """crowd.usda references each character's cloth.usdc under /World/dancer_NN; the camera comes
+    with the first character only."""
+    run = tmp_path / "crowd"
+    summary = run_config(run, "scene=multiple_dancers", "scene.params.dancers=2", "scene.scales.small.resolution=8",
+                         "frames=2", "crowd_jobs=1", "output.usd_every=1", "output.states_every=1", *QUIET)
+    assert summary["status"] == "completed"
+    stage = Usd.Stage.Open(str(run / "crowd.usda"))
+    assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (0, 2)
+    for i in range(2):
+        cloth = UsdGeom.Mesh(stage.GetPrimAtPath(f"/World/dancer_{i:02d}/Cloth"))
+        state = load_state(run / f"dancer_{i:02d}" / "states" / "frame_00002.npz")
+        assert np.abs(np.asarray(cloth.GetPointsAttr().Get(2)) - state["node_x"]).max() < FLOAT32_M
+    assert stage.GetPrimAtPath("/World/dancer_00/Camera") and not stage.GetPrimAtPath("/World/dancer_01/Camera")

@@ -62,15 +62,15 @@ def camera_matrix(cam) -> np.ndarray:
 class UsdRecorder(Recorder):
     """Writes every `every`-th frame (and frame 0) into a USD stage at `path` (module docstring).
     `resume_from` (a checkpoint's frame): continue the stage already at `path`, its samples after
-    that frame dropped."""
+    that frame dropped. `log_camera` false: no camera (a crowd's characters but the first)."""
 
-    def __init__(self, path, every: int, frame_time: float, resume_from: int | None = None):
+    def __init__(self, path, every: int, frame_time: float, resume_from: int | None = None, log_camera: bool = True):
         from pxr import Sdf, Usd, UsdGeom  # noqa: PLC0415 - optional (the usd extra), only with output.usd_every
 
         if int(every) < 1:
             raise ValueError(f"USD: every must be >= 1 frame, got {every}")
         self.Sdf, self.Usd, self.UsdGeom = Sdf, Usd, UsdGeom
-        self.path, self.every = Path(path), int(every)
+        self.path, self.every, self.log_camera = Path(path), int(every), bool(log_camera)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         if resume_from is not None and self.path.is_file():
             self.stage = Usd.Stage.Open(str(self.path))
@@ -120,7 +120,7 @@ class UsdRecorder(Recorder):
             self.view.Set(Vt.FloatArray.FromNumpy(np.asarray(view_factor, dtype=np.float32)), t)
         for ob in obstacles:
             self._obstacle(ob, t)
-        if camera is not None:
+        if camera is not None and self.log_camera:
             self._camera(camera, t, Gf)
         self._frames = sorted(set(self._frames) | {frame})
         self.stage.SetStartTimeCode(self._frames[0])
@@ -162,3 +162,39 @@ class UsdRecorder(Recorder):
         if self.stage is not None:
             self.stage.Save()
             self.stage = None
+
+
+CROWD_USD_FILE = "crowd.usda"
+
+
+def write_crowd_stage(path, characters, frame_time: float) -> Path:
+    """A crowd's stage (a small text layer at `path`): each character's own stage (its run folder's
+    cloth.usdc) referenced under /World/<its folder's name>, at the crowd's frame rate, from the
+    first frame any of them holds to the last."""
+    from pxr import Usd, UsdGeom  # noqa: PLC0415 - see UsdRecorder
+
+    path = Path(path)
+    path.unlink(missing_ok=True)
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    fps = 1.0 / float(frame_time)
+    stage.SetTimeCodesPerSecond(fps)
+    stage.SetFramesPerSecond(fps)
+    world = UsdGeom.Xform.Define(stage, "/World")
+    stage.SetDefaultPrim(world.GetPrim())
+    start, end = [], []
+    for folder in characters:
+        layer = Path(folder) / USD_FILE
+        if not layer.is_file():
+            continue
+        sub = Usd.Stage.Open(str(layer))
+        start.append(sub.GetStartTimeCode())
+        end.append(sub.GetEndTimeCode())
+        prim = UsdGeom.Xform.Define(stage, f"/World/{_name(Path(folder).name)}").GetPrim()
+        prim.GetReferences().AddReference(str(layer.relative_to(path.parent)), "/World")
+    if start:
+        stage.SetStartTimeCode(min(start))
+        stage.SetEndTimeCode(max(end))
+    stage.Save()
+    return path
