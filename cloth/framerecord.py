@@ -18,6 +18,7 @@ from cloth.core.measured import MeasuredMaterial
 from cloth.physics.buckling import compressive_energy
 from cloth.physics.measured_membrane import measured_compressive_energy
 from cloth.view.factors import face_geometry, face_view_data
+from cloth.view.paths import rig_paths
 
 
 class FrameRecord:
@@ -28,19 +29,28 @@ class FrameRecord:
         """Faces in view (in the frustum and facing the camera), back-facing in frame, out of frame,
         and compressive_energy_out_j (cloth.physics.buckling.compressive_energy of the faces out
         of the frame). NaN without a camera. The same definitions as the view-dependent sizing
-        (face centroids)."""
+        (face centroids). With several cameras (a CameraRig): in view of any, in no camera's
+        frame, and faces_in_view_<name> per camera."""
         nan = float("nan")
         if self.scene.camera is None:
             return {"faces_in_view": nan, "faces_back_facing": nan, "faces_out_of_frame": nan,
                     "faces_compensated": nan, "compressive_energy_out_j": nan}
         c, n = face_geometry(self.scene.mesh)
-        d, front = face_view_data(self.scene.camera.camera_at(self.time), c, n)
-        inside = d == 0
-        return {"faces_in_view": int(np.count_nonzero(inside & front)),
-                "faces_back_facing": int(np.count_nonzero(inside & ~front)),
+        paths = rig_paths(self.scene.camera)
+        inside = np.zeros(len(c), dtype=bool)
+        seen = np.zeros(len(c), dtype=bool)
+        per_camera = {}
+        for name, path in paths:  # several cameras (a CameraRig): in view or frame of any of them
+            d, front = face_view_data(path.camera_at(self.time), c, n)
+            inside |= d == 0
+            seen |= (d == 0) & front
+            if len(paths) > 1:
+                per_camera[f"faces_in_view_{name}"] = int(np.count_nonzero((d == 0) & front))
+        return {"faces_in_view": int(np.count_nonzero(seen)),
+                "faces_back_facing": int(np.count_nonzero(inside & ~seen)),
                 "faces_out_of_frame": int(np.count_nonzero(~inside)),
                 "faces_compensated": self.faces_compensated if self.buckling is not None else 0,
-                "compressive_energy_out_j": self.compressive_energy(np.flatnonzero(~inside))}
+                "compressive_energy_out_j": self.compressive_energy(np.flatnonzero(~inside)), **per_camera}
 
     def compressive_energy(self, faces: np.ndarray) -> float:
         """J: the membrane energy of the compressive principal strains of `faces` (what buckling

@@ -35,6 +35,7 @@ from cloth.physics.linsolve import resolve_method
 from cloth.signals import Terminated, sigterm_interrupts
 from cloth.simulation import Simulation, SimulationDiverged
 from cloth.view.factors import face_geometry, face_view_data, spatial_view_factor
+from cloth.view.paths import rig_paths
 from cloth.view.viewdep import ViewParams
 
 JOURNAL_FILE = "frames.jsonl"  # the records of the frames finished so far, while a run goes on
@@ -255,6 +256,11 @@ VISIBLE_RGB = np.array([0.15, 0.35, 0.95])  # the paper's Fig. 1: visible faces 
 HIDDEN_RGB = np.array([0.9, 0.15, 0.1])  # not visible: red, lighter where the view factor is lower
 
 
+def _more_cameras(sim) -> dict:
+    """{name: camera now} of the cameras beside the main one (a CameraRig; {} otherwise)."""
+    return {name: path.camera_at(sim.time) for name, path in rig_paths(sim.scene.camera)[1:]}
+
+
 def _view(sim):
     """(camera now, per-face RGB by view factor, per-face spatial view factor) or (None, None, None)
     without a camera."""
@@ -262,9 +268,13 @@ def _view(sim):
         return None, None, None
     cam = sim.scene.camera.camera_at(sim.time)
     p = getattr(sim.remesher, "view", None) or ViewParams()
-    d, front = face_view_data(cam, *face_geometry(sim.mesh))
-    nu = spatial_view_factor(d, front, p.nu_front, p.nu_back, p.nu_out, p.margin)
-    visible = (d == 0) & front
+    geometry = face_geometry(sim.mesh)
+    nu, visible = None, None
+    for _, path in rig_paths(sim.scene.camera):  # several cameras: the largest factor, visible in any
+        d, front = face_view_data(path.camera_at(sim.time), *geometry)
+        nu_c = spatial_view_factor(d, front, p.nu_front, p.nu_back, p.nu_out, p.margin)
+        nu = nu_c if nu is None else np.maximum(nu, nu_c)
+        visible = (d == 0) & front if visible is None else visible | ((d == 0) & front)
     shade = HIDDEN_RGB * (0.4 + 0.6 * nu[:, None]) + 0.6 * (1 - nu[:, None]) * np.array([1.0, 0.8, 0.8])
     colors = np.where(visible[:, None], VISIBLE_RGB, np.clip(shade, 0, 1))
     return cam, colors, nu
@@ -319,7 +329,7 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
     obstacles = sim.obstacle_set.obstacles if sim.contact is not None else ()
     camera, colors, nu = _view(sim)
     recorder.log_frame(sim.frame, sim.time, sim.mesh, face_colors=colors, obstacles=obstacles, camera=camera,
-                       view_factor=nu)
+                       view_factor=nu, more_cameras=_more_cameras(sim))
     if states_every > 0 and sim.frame % states_every == 0:
         save_state(out_dir / "states" / f"frame_{sim.frame:05d}.npz", sim.mesh, sim.frame, sim.time, obstacles,
                    scene.handles, restart=True)
@@ -332,7 +342,7 @@ def run(sim: Simulation, n_frames: int, out_dir: Path, recorder: Recorder | None
             t0 = time.perf_counter()
             camera, colors, nu = _view(sim)
             recorder.log_frame(sim.frame, sim.time, sim.mesh, face_colors=colors, obstacles=obstacles, camera=camera,
-                               view_factor=nu)
+                               view_factor=nu, more_cameras=_more_cameras(sim))
             if obj_every > 0 and sim.frame % obj_every == 0:
                 save_obj(out_dir / "obj" / f"frame_{sim.frame:05d}.obj", sim.mesh)
             if states_every > 0 and sim.frame % states_every == 0:

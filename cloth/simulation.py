@@ -91,6 +91,7 @@ from cloth.stepcontrol import KE_FLOOR_SPEED_M_S as KE_FLOOR_SPEED_M_S
 from cloth.stepcontrol import KE_JUMP_FACTOR as KE_JUMP_FACTOR
 from cloth.stepcontrol import MAX_STEP_HALVINGS, StepControl
 from cloth.stepcontrol import SimulationDiverged as SimulationDiverged
+from cloth.view.paths import cameras_at
 
 # A free node within (1 + CONTACT_BAND) x thickness of an obstacle at the start of a step is a
 # contact candidate for the solve (projection leaves resting nodes at exactly the thickness).
@@ -290,8 +291,10 @@ class Simulation(StepControl, Restart, FrameRecord):
         if self.buckling is None:
             return
         mesh = self.scene.mesh
-        camera = self.scene.camera.camera_at(self.time)
-        out = camera.distance_to_frustum(mesh.node_x[mesh.face_nodes].mean(axis=1)) > 0
+        centroids = mesh.node_x[mesh.face_nodes].mean(axis=1)
+        out = np.ones(mesh.n_faces, dtype=bool)  # out of every camera's frustum (several: a CameraRig)
+        for camera in cameras_at(self.scene.camera, self.time):
+            out &= camera.distance_to_frustum(centroids) > 0
         alpha = face_alpha(mesh.face_area, out, self.buckling)
         for term in self.terms:
             if term.name == "membrane":

@@ -16,6 +16,7 @@ import inspect
 import os
 import re
 import sys
+from pathlib import Path
 
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
@@ -33,7 +34,7 @@ from cloth.scenes.arcsim import arcsim_end_frames, arcsim_remesher_overrides
 from cloth.scenes.registry import CROWDS, SCENES, build_scene, crowd_columns, crowd_placement, multiple_dancers
 from cloth.simulation import Simulation
 from cloth.view.camera import ViewError
-from cloth.view.paths import fit_shots, path_from_config
+from cloth.view.paths import CameraRig, fit_shots, path_from_config
 from cloth.view.viewdep import ViewDependentRemesher, ViewParams
 from experiments.checks import (
     MODE_KEYS,
@@ -63,6 +64,7 @@ IMPLEMENTED_MODES = ("nonadaptive", "adaptive", "viewdep")
 REMESHING_MODES = ("adaptive", "viewdep")
 
 
+CAMERA_CONF = Path(__file__).resolve().parents[1] / "conf" / "camera"  # the camera configs `cameras` names
 MEMBER_SEED_STRIDE = 1000  # scene seed of member K of a reference ensemble: seed + 1000 K
 # reference_check: the reference refined by REFERENCE_REFINEMENT in one discretisation parameter,
 # the fine one (twice the segments: half the edge, four times the faces) or the half time step (twice
@@ -160,13 +162,64 @@ def camera_path(cfg):
 
 def build_camera(cfg: DictConfig):
     """The camera path of `cfg.camera` (None for camera=none), fitted to a crowd's stage
-    (:func:`stage_camera_config`); ConfigError names a bad camera.* key."""
+    (:func:`stage_camera_config`); with `cameras` (beyond the paper) a rig of it and those
+    (:func:`extra_cameras`). ConfigError names a bad camera.* or cameras[i] key."""
     try:
-        return camera_path(cfg)
+        main = camera_path(cfg)
     except (ViewError, KeyError, TypeError, ValueError) as exc:
         if isinstance(exc, ConfigError):
             raise
         raise ConfigError(f"{_camera_key(cfg, exc)}: {exc}") from None
+    more = extra_cameras(cfg)
+    if not more:
+        return main
+    named = ([("main", main)] if main is not None else []) + more
+    names = [n for n, _ in named]
+    for i, (name, _) in enumerate(more):
+        before = names[:len(named) - len(more) + i]
+        _require(name not in before, f"cameras[{i}]", f"a second camera named {name!r}; give it another "
+                 f"`name` (camera names: {names})")
+    return named[0][1] if len(named) == 1 else CameraRig([p for _, p in named], names)
+
+
+CAMERA_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
+
+
+def extra_cameras(cfg) -> list[tuple[str, object]]:
+    """[(name, camera path), ...] of `cameras` (beyond the paper: cameras the view-dependent
+    sizing, buckling compensation and the records look at beside `camera`, the main one). Each
+    entry is the name of a camera of conf/camera/ (its name is the file's) or a camera config (a
+    mapping as those files hold, `type: static` when it has none, `target` read as `look_at`, and
+    an optional `name`); each is fitted to a crowd's stage as `camera` is. ConfigError names the
+    bad entry (`cameras[i]`)."""
+    entries = cfg.get("cameras")
+    entries = OmegaConf.to_container(entries, resolve=True) if OmegaConf.is_config(entries) else entries or []
+    _require(isinstance(entries, list), "cameras", f"must be a list of camera names or configs, got {entries!r}")
+    scene = cfg.get("scene") or {}
+    scene = {"name": scene.get("name"), "params": _plain(scene.get("params"))}
+    out = []
+    for i, entry in enumerate(entries):
+        key = f"cameras[{i}]"
+        if isinstance(entry, str):
+            known = sorted(p.stem for p in CAMERA_CONF.glob("*.yaml") if p.stem != "none")
+            _require(entry in known, key, f"no camera {entry!r} in conf/camera/; known: {', '.join(known)}")
+            cam, name = OmegaConf.to_container(OmegaConf.load(CAMERA_CONF / f"{entry}.yaml"), resolve=True), entry
+        else:
+            _require(isinstance(entry, dict), key, f"must be a camera name or a camera config, got {entry!r}")
+            cam = dict(entry)
+            name = cam.pop("name", f"camera{i + 1}")
+            cam.setdefault("type", "static")
+            if "target" in cam:
+                cam.setdefault("look_at", cam["target"])
+        _require(isinstance(name, str) and CAMERA_NAME.fullmatch(name) is not None, f"{key}.name",
+                 f"must be a name of letters, digits and _ (it names records: faces_in_view_<name>), got {name!r}")
+        try:
+            out.append((name, path_from_config(stage_camera_config(cam, scene))))
+        except (ViewError, KeyError, TypeError, ValueError) as exc:
+            if isinstance(exc, ConfigError):
+                raise
+            raise ConfigError(f"{key}: {exc}") from None
+    return out
 
 
 def _camera_key(cfg, exc: Exception) -> str:

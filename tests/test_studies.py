@@ -46,8 +46,8 @@ def _runs(experiment: str) -> list[list[str]]:
     grid = [[]]
     preset = yaml.safe_load((ROOT / "conf" / "experiment" / f"{experiment}.yaml").read_text())
     for key, values in _sweep(experiment).items():
-        if values == ["${points}"]:  # table1: its points list, with its baseline
-            values = preset["points"].replace("${baseline}", preset["baseline"]).split(",")
+        if values == ["${points}"]:  # its points list (table1's with its baseline)
+            values = preset["points"].replace("${baseline}", str(preset.get("baseline"))).split(",")
         grid = [g + [f"{key}={v}"] for g in grid for v in values]
     return [[f"+experiment={experiment}"] + g for g in grid]
 

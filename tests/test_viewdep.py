@@ -172,7 +172,8 @@ def test_records_and_recording_with_a_camera(tmp_path):
         def __init__(self):
             self.calls = []
 
-        def log_frame(self, frame, time_s, mesh, face_colors=None, obstacles=(), camera=None, view_factor=None):
+        def log_frame(self, frame, time_s, mesh, face_colors=None, obstacles=(), camera=None, view_factor=None,
+                      more_cameras=None):
             self.calls.append((mesh.n_faces, face_colors, camera))
 
         def close(self):

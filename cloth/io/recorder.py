@@ -24,8 +24,9 @@ class Recorder:
         pass
 
     def log_frame(self, frame: int, time_s: float, mesh: Mesh, face_colors=None, obstacles=(), camera=None,
-                  view_factor=None) -> None:
-        """`face_colors` (F, 3) RGB by view factor, `view_factor` (F,) its value (with a camera)."""
+                  view_factor=None, more_cameras=None) -> None:
+        """`face_colors` (F, 3) RGB by view factor, `view_factor` (F,) its value (with a camera),
+        `more_cameras` {name: Camera} the cameras beside the main one (a CameraRig)."""
 
     def close(self) -> None:
         pass
@@ -51,10 +52,11 @@ class Recorders(Recorder):
         for r in self.recorders:
             r.log_static(name, vertices, faces, color)
 
-    def log_frame(self, frame, time_s, mesh, face_colors=None, obstacles=(), camera=None, view_factor=None):
+    def log_frame(self, frame, time_s, mesh, face_colors=None, obstacles=(), camera=None, view_factor=None,
+                  more_cameras=None):
         for r in self.recorders:
             r.log_frame(frame, time_s, mesh, face_colors=face_colors, obstacles=obstacles, camera=camera,
-                        view_factor=view_factor)
+                        view_factor=view_factor, more_cameras=more_cameras)
 
     def close(self):
         for r in self.recorders:
@@ -97,7 +99,8 @@ class RerunRecorder(Recorder):
             vertex_positions=np.asarray(vertices, np.float32), triangle_indices=np.asarray(faces, np.uint32),
             albedo_factor=color or OBSTACLE_COLOR), static=True)
 
-    def log_frame(self, frame, time_s, mesh, face_colors=None, obstacles=(), camera=None, view_factor=None):
+    def log_frame(self, frame, time_s, mesh, face_colors=None, obstacles=(), camera=None, view_factor=None,
+                  more_cameras=None):
         rr = self.rr
         self.rec.set_time("frame", sequence=int(frame))
         self.rec.set_time("sim_time", duration=float(time_s))
@@ -124,8 +127,10 @@ class RerunRecorder(Recorder):
                 self._static_obstacles.add(ob.name)
         if camera is not None and self.log_camera:
             self._log_camera(camera)
+            for name, cam in (more_cameras or {}).items():
+                self._log_camera(cam, f"world/cameras/{name}")
 
-    def _log_camera(self, cam):
+    def _log_camera(self, cam, entity: str = "world/camera"):
         rr = self.rr
         pos, look, up = (np.asarray(a, float) for a in (cam.position, cam.look_at, cam.up))
         fwd = look - pos
@@ -135,9 +140,9 @@ class RerunRecorder(Recorder):
         down = np.cross(fwd, right)
         # camera frame: x right, y down, z forward (Rerun's RDF convention)
         world_from_camera = np.column_stack([right, down, fwd])
-        self.rec.log("world/camera", rr.Transform3D(translation=pos, mat3x3=world_from_camera))
+        self.rec.log(entity, rr.Transform3D(translation=pos, mat3x3=world_from_camera))
         f = 0.5 * cam.height / np.tan(np.radians(cam.fov_y_deg) / 2)
-        self.rec.log("world/camera", rr.Pinhole(focal_length=float(f), width=cam.width, height=cam.height,
+        self.rec.log(entity, rr.Pinhole(focal_length=float(f), width=cam.width, height=cam.height,
                                                 camera_xyz=rr.ViewCoordinates.RDF))
 
     def close(self):

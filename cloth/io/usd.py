@@ -14,10 +14,10 @@ Stage ``<run>/cloth.usdc`` (Z up, metres; time code = frame number, ``timeCodesP
   when the scene has a camera.
 * ``/World/Obstacles/<name>`` (Mesh): each obstacle's display mesh, points time-sampled when it
   moves.
-* ``/World/Camera`` (Camera): its pose (``xformOp:transform``, time-sampled) and intrinsics: the
-  vertical aperture is VERTICAL_APERTURE_MM and the focal length gives the camera's vertical field
-  of view, the horizontal aperture its image's aspect ratio. USD cameras look down their -Z axis
-  with +Y up.
+* ``/World/Camera`` (Camera), and ``/World/Camera_<name>`` for each further camera of a rig:
+  its pose (``xformOp:transform``, time-sampled) and intrinsics: the vertical aperture is
+  VERTICAL_APERTURE_MM and the focal length gives the camera's vertical field of view, the
+  horizontal aperture its image's aspect ratio. USD cameras look down their -Z axis with +Y up.
 
 The stage is saved after every frame it takes, so that a run that stops keeps what it wrote; a
 run resumed from a checkpoint (experiments.resume) drops the samples after the checkpoint's frame
@@ -101,7 +101,8 @@ class UsdRecorder(Recorder):
                     if t > frame:
                         attr.ClearAtTime(t)
 
-    def log_frame(self, frame, time_s, mesh, face_colors=None, obstacles=(), camera=None, view_factor=None):
+    def log_frame(self, frame, time_s, mesh, face_colors=None, obstacles=(), camera=None, view_factor=None,
+                  more_cameras=None):
         frame = int(frame)
         if frame % self.every != 0:
             return
@@ -122,6 +123,8 @@ class UsdRecorder(Recorder):
             self._obstacle(ob, t)
         if camera is not None and self.log_camera:
             self._camera(camera, t, Gf)
+            for name, cam in (more_cameras or {}).items():
+                self._camera(cam, t, Gf, f"/World/Camera_{_name(name)}")
         self._frames = sorted(set(self._frames) | {frame})
         self.stage.SetStartTimeCode(self._frames[0])
         self.stage.SetEndTimeCode(self._frames[-1])
@@ -147,9 +150,9 @@ class UsdRecorder(Recorder):
         else:
             mesh.GetPointsAttr().Set(pts)
 
-    def _camera(self, cam, t: float, Gf) -> None:
+    def _camera(self, cam, t: float, Gf, path: str = "/World/Camera") -> None:
         UsdGeom = self.UsdGeom
-        c = UsdGeom.Camera.Define(self.stage, "/World/Camera")
+        c = UsdGeom.Camera.Define(self.stage, path)
         ops = c.GetOrderedXformOps()
         op = ops[0] if ops else c.AddTransformOp()
         op.Set(Gf.Matrix4d(camera_matrix(cam).tolist()), t)

@@ -131,6 +131,44 @@ class CutPath(CameraPath):
         return self.shots[i].camera_at(t)
 
 
+@dataclass
+class CameraRig(CameraPath):
+    """Several cameras at once (beyond the paper, which has one): `paths` with their `names`, the
+    first being the main camera. The view-dependent sizing takes, per face, the largest view
+    factor over the cameras and the finest screen-space clamp (cloth.view.viewdep), buckling
+    compensation acts only out of every frustum, and the records count faces in view per camera;
+    what shows one shot (stills, the accuracy measures) uses the main camera, `camera_at`."""
+
+    paths: tuple
+    names: tuple
+
+    def __post_init__(self):
+        self.paths, self.names = tuple(self.paths), tuple(str(n) for n in self.names)
+        if len(self.paths) < 1 or len(self.names) != len(self.paths):
+            raise ViewError(f"camera rig: {len(self.paths)} paths for {len(self.names)} names")
+        if len(set(self.names)) != len(self.names):
+            raise ViewError(f"camera rig: camera names must differ, got {list(self.names)}")
+        self.cuts = tuple(sorted({c for p in self.paths for c in p.cuts}))
+
+    def camera_at(self, t):
+        return self.paths[0].camera_at(t)
+
+
+def rig_paths(path: CameraPath | None) -> list[tuple[str, CameraPath]]:
+    """[(name, path), ...] of every camera of `path`: a rig's, or the one path's named 'main'
+    ([] for None)."""
+    if path is None:
+        return []
+    if isinstance(path, CameraRig):
+        return list(zip(path.names, path.paths))
+    return [("main", path)]
+
+
+def cameras_at(path: CameraPath | None, t: float) -> list[Camera]:
+    """Every camera of `path` (a rig's or the one) at time t."""
+    return [p.camera_at(t) for _, p in rig_paths(path)]
+
+
 def _vec(d, key, default=None):
     v = d.get(key, default)
     if v is None:

@@ -50,7 +50,7 @@ from cloth.view.factors import (
     spatial_view_factor,
 )
 from cloth.view.occlusion import Occluders, obstacle_occluders, occluded_faces
-from cloth.view.paths import CameraPath
+from cloth.view.paths import CameraPath, rig_paths
 
 
 @dataclass(frozen=True)
@@ -133,6 +133,7 @@ class ViewDependentRemesher(AdaptiveRemesher):
         if self.camera is None:
             raise ViewError("mode=viewdep needs a camera path (camera=...)")
         self.last = {}
+        self.seen = {}  # camera name -> (F,) bool: the faces it saw at the last sizing (view_factors)
         self._idle = False  # the last remesh was of a character out of view and changed nothing
 
     def character_out_of_view(self, sim) -> bool:
@@ -150,8 +151,9 @@ class ViewDependentRemesher(AdaptiveRemesher):
         if self.view.anticipation:
             times += list(sim.time + self.frame_time + self.taus())
         for t in times:
-            if self.camera.camera_at(t).distance_to_frustum(centre[None])[0] - radius <= self.view.margin:
-                return False
+            for _, path in rig_paths(self.camera):
+                if path.camera_at(t).distance_to_frustum(centre[None])[0] - radius <= self.view.margin:
+                    return False
         return True
 
     def steps_for_frame(self, sim) -> int:
@@ -191,29 +193,45 @@ class ViewDependentRemesher(AdaptiveRemesher):
         time t. With `occluders` (view.occlusion on), a face in frame and front-facing that they or
         the cloth hide counts as back-facing for eq 3, at each tau sample's camera (module
         docstring); `occluded` is that test at the first camera (tau = 0) and `visible` is in
-        frame, front-facing and not occluded there."""
-        p = self.view
+        frame, front-facing and not occluded there.
+
+        With several cameras (cloth.view.paths.CameraRig, beyond the paper) eqs 3-4 are taken per
+        camera, each over its own path, and a face's view factor is the largest of them; `visible`
+        and `in_frame` hold in any camera, `front` and `occluded` are the main camera's. Each
+        camera's visible faces are kept (`self.seen`, by camera name) for the screen-space clamp."""
         c, n = face_geometry(mesh)
         tested = {}  # camera_key -> occluded (F,) bool: a static shot is tested once
+        self.seen = {}
+        nu = in_frame = front0 = hidden0 = None
+        for name, path in rig_paths(self.camera):
+            nu_c, d0, f0, h0 = self._camera_view_factor(path, mesh, t, c, n, occluders, tested)
+            self.seen[name] = (d0 == 0) & f0 & ~h0
+            if nu is None:
+                nu, in_frame, front0, hidden0 = nu_c, d0 == 0, f0, h0
+            else:
+                nu, in_frame = np.maximum(nu, nu_c), in_frame | (d0 == 0)
+        visible = np.logical_or.reduce(list(self.seen.values()))
+        nu = resample_silhouette(nu, visible, mesh.edge_faces, self.view.silhouette_threshold)
+        return nu, visible, in_frame, front0, hidden0
+
+    def _camera_view_factor(self, path: CameraPath, mesh, t: float, c, n, occluders, tested):
+        """One camera path's eq 3 (with eq 4 over its future when anticipating): (nu (F,), and at
+        its first camera d (F,), front (F,), occluded (F,))."""
+        p = self.view
         if p.anticipation:
             t_img = t + self.frame_time
             taus = self.taus()
             rows = []
             for k, tau in enumerate(taus):
-                d, front, hidden = self.face_visibility(self.camera.camera_at(t_img + tau), mesh, c, n, occluders,
-                                                        tested)
+                d, front, hidden = self.face_visibility(path.camera_at(t_img + tau), mesh, c, n, occluders, tested)
                 if k == 0:
                     d0, front0, hidden0 = d, front, hidden
                 rows.append(spatial_view_factor(d, front & ~hidden, p.nu_front, p.nu_back, p.nu_out, p.margin))
             T = p.anticipation_frames * self.frame_time
-            nu = anticipated_view_factor(np.array(rows), taus, T)
-        else:
-            d0, front0, hidden0 = self.face_visibility(self.camera.camera_at(t), mesh, c, n, occluders, tested)
-            nu = spatial_view_factor(d0, front0 & ~hidden0, p.nu_front, p.nu_back, p.nu_out, p.margin)
-        in_frame = d0 == 0
-        visible = in_frame & front0 & ~hidden0
-        nu = resample_silhouette(nu, visible, mesh.edge_faces, p.silhouette_threshold)
-        return nu, visible, in_frame, front0, hidden0
+            return anticipated_view_factor(np.array(rows), taus, T), d0, front0, hidden0
+        d0, front0, hidden0 = self.face_visibility(path.camera_at(t), mesh, c, n, occluders, tested)
+        nu = spatial_view_factor(d0, front0 & ~hidden0, p.nu_front, p.nu_back, p.nu_out, p.margin)
+        return nu, d0, front0, hidden0
 
     def face_visibility(self, camera: Camera, mesh, centroids, normals, occluders: Occluders | None,
                         tested: dict):
@@ -249,17 +267,34 @@ class ViewDependentRemesher(AdaptiveRemesher):
         nu, visible, in_frame, front, occluded = self.view_factors(mesh, sim.time, occluders)
         M = scale_sizing(M, nu)
         if visible.any():
-            t_view = sim.time + self.frame_time if self.view.anticipation else sim.time
-            cam = self.camera.camera_at(t_view)
-            S = material_to_screen_jacobian(cam, mesh.vert_u, mesh.face_verts[visible], mesh.vert_x())
-            M[visible] = screen_space_clamp(M[visible], S, self.view.l_min_px)
+            M = self.clamp_on_screen(M, mesh, sim.time + self.frame_time if self.view.anticipation else sim.time)
         if self.view.contact_size is not None and sim.contact is not None:
             M = self.contact_floor(M, sim)
         self.last = {"view_factor_min": float(nu.min()), "view_factor_mean": float(nu.mean()),
                      "view_factor_max": float(nu.max()), "faces_occluded": int(np.count_nonzero(occluded))}
+        if len(self.seen) > 1:  # a rig: the faces each camera's sizing saw (cloth.view.paths.CameraRig)
+            self.last.update({f"sizing_faces_visible_{name}": int(v.sum()) for name, v in self.seen.items()})
         if self.view.contact_size is not None and sim.contact is not None:
             self.last["contact_floor_faces"] = self.contact_floor_faces
         return M
+
+    def clamp_on_screen(self, M: np.ndarray, mesh, t_view: float) -> np.ndarray:
+        """Eqs 5-8 on the faces each camera sees (`self.seen`, from view_factors), at its camera at
+        t_view. A face seen by several cameras (a rig) takes the finest of their clamps, the one
+        with the largest det M (the most faces per area); faces no camera sees keep M."""
+        out = M.copy()
+        best = np.full(len(M), -np.inf)
+        x = mesh.vert_x()
+        for name, path in rig_paths(self.camera):
+            seen = np.flatnonzero(self.seen[name])
+            if seen.size == 0:
+                continue
+            S = material_to_screen_jacobian(path.camera_at(t_view), mesh.vert_u, mesh.face_verts[seen], x)
+            Mc = screen_space_clamp(M[seen], S, self.view.l_min_px)
+            det = Mc[:, 0, 0] * Mc[:, 1, 1] - Mc[:, 0, 1] * Mc[:, 1, 0]
+            finer = det > best[seen]
+            out[seen[finer]], best[seen[finer]] = Mc[finer], det[finer]
+        return out
 
     def contact_floor(self, M: np.ndarray, sim) -> np.ndarray:
         """Near obstacles, sizes no coarser than view.contact_size: eigenvalues of M raised to at
