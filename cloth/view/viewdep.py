@@ -49,6 +49,7 @@ from cloth.view.factors import (
     screen_space_clamp,
     spatial_view_factor,
 )
+from cloth.view.live import LiveCamera, live_camera
 from cloth.view.occlusion import Occluders, obstacle_occluders, occluded_faces
 from cloth.view.paths import CameraPath, rig_paths
 
@@ -81,6 +82,10 @@ class ViewParams:
     # the cloth (90 %: 11.3-25.8 mm), on 22 % fewer faces and 7 % less time: a spinning dancer turns
     # hidden cloth into view within a window, and the test sees only the current geometry.
     occlusion: bool = False
+    # False (beyond the paper): the camera's future is not known, as with a live camera. Eq 4's
+    # window then looks at poses predicted from the poses seen so far, each frustum widened by the
+    # predictor's measured error (cloth.view.live.LiveCamera); cuts are met as they come.
+    lookahead: bool = True
     occlusion_scale: float = 0.25  # z-buffer size / the camera's image size (1280 x 720 -> 320 x 180)
 
     def __post_init__(self):
@@ -106,6 +111,8 @@ class ViewParams:
             raise ViewError(f"view.contact_distance must be >= 0 m, got {self.contact_distance}")
         if self.out_of_view_steps is not None and int(self.out_of_view_steps) < 1:
             raise ViewError(f"view.out_of_view_steps must be >= 1 (or null: the scene's), got {self.out_of_view_steps}")
+        if not isinstance(self.lookahead, (bool, np.bool_)):
+            raise ViewError(f"view.lookahead must be true or false, got {self.lookahead!r}")
         if not isinstance(self.occlusion, (bool, np.bool_)):
             raise ViewError(f"view.occlusion must be true or false, got {self.occlusion!r}")
         if not (isinstance(self.occlusion_scale, (int, float)) and not isinstance(self.occlusion_scale, bool)
@@ -132,6 +139,8 @@ class ViewDependentRemesher(AdaptiveRemesher):
         super().__post_init__()
         if self.camera is None:
             raise ViewError("mode=viewdep needs a camera path (camera=...)")
+        if not self.view.lookahead:  # the sizing sees the camera as a live source (cloth.view.live)
+            self.camera = live_camera(self.camera)
         self.last = {}
         self.seen = {}  # camera name -> (F,) bool: the faces it saw at the last sizing (view_factors)
         self._idle = False  # the last remesh was of a character out of view and changed nothing
@@ -167,6 +176,9 @@ class ViewDependentRemesher(AdaptiveRemesher):
         there changed nothing (its sizing is nu_out^2 M everywhere: the same coarsest mesh)."""
         if sim.frame % int(self.every) != 0:
             return False
+        for _, path in rig_paths(self.camera):  # a live camera's pose now becomes known
+            if isinstance(path, LiveCamera):
+                path.observe(sim.time)
         t0 = time.perf_counter()
         out = self.character_out_of_view(sim)
         timings["sizing"] += time.perf_counter() - t0
@@ -289,7 +301,8 @@ class ViewDependentRemesher(AdaptiveRemesher):
             seen = np.flatnonzero(self.seen[name])
             if seen.size == 0:
                 continue
-            S = material_to_screen_jacobian(path.camera_at(t_view), mesh.vert_u, mesh.face_verts[seen], x)
+            cam = path.best_guess_at(t_view) if isinstance(path, LiveCamera) else path.camera_at(t_view)
+            S = material_to_screen_jacobian(cam, mesh.vert_u, mesh.face_verts[seen], x)
             Mc = screen_space_clamp(M[seen], S, self.view.l_min_px)
             det = Mc[:, 0, 0] * Mc[:, 1, 1] - Mc[:, 0, 1] * Mc[:, 1, 0]
             finer = det > best[seen]
