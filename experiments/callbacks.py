@@ -29,7 +29,7 @@ from pathlib import Path
 
 import yaml
 from hydra.experimental.callback import Callback
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from experiments.analysis.accuracy import AccuracyError, evaluate_runs, write_accuracy
 from experiments.analysis.sync import (
@@ -108,7 +108,7 @@ def measure_accuracy(sweep_dir: Path, log=print, sync: dict | None = None) -> in
                 except AccuracyError as exc:  # e.g. a run too short for a window: the others go on
                     log(f"sync: {run.name} not measured: {exc}")
                     continue
-                write_sync(run, table, starts, **{k: v for k, v in opts.items() if k != "per_frame"})
+                write_sync(run, table, starts, **{k: v for k, v in opts.items() if k not in ("per_frame", "views")})
             checks = [r for r in runs if cfgs[r].get("reference_check") and cfgs[r]["scene"]["name"] == scene
                       and cfgs[r].get("seed") == seed and _completed(r)]
             if checks:
@@ -130,8 +130,9 @@ def measured_already(run: Path, starts, opts: dict) -> bool:
         return False
     same = all(done.get(k) == opts[k] for k in ("every", "horizon", "before_cut", "resolution_scale", "restart")
                if k in opts)
-    return (same and done.get("reference") == str(starts[0].resolve()) and done.get("members") == len(starts)
-            and written > finished)
+    views = all(f"sync_error_px_view_{v}_mean" in done for v in opts.get("views") or [])
+    return (same and views and done.get("reference") == str(starts[0].resolve())
+            and done.get("members") == len(starts) and written > finished)
 
 
 # The perturbed restart's displacement: 0.1 mm, a thousandth of the study's edges (centimetres) and far
@@ -146,7 +147,7 @@ def reference_error(ref: Path, checks: dict, opts: dict, log=print) -> None:
     segments, half_dt: half its time step) against the check's continuation, into the reference's
     folder as sync_<check>.parquet/.json; and the reference restarted from its own states moved by
     FLOOR_PERTURBATION_M against itself (sync_floor.*: the floor chaos sets within a window)."""
-    write_opts = {k: v for k, v in opts.items() if k != "per_frame"}
+    write_opts = {k: v for k, v in opts.items() if k not in ("per_frame", "views")}
     for check, run in sorted(checks.items()):
         log(f"sync: the reference {ref.name} restarted from {run.name}'s states (its own error: {check})")
         try:
@@ -192,12 +193,18 @@ class StudyCallback(Callback):
         self.sync = None
         if sync is not None:
             opts = {"every": EVERY, "horizon": HORIZON, "before_cut": BEFORE_CUT, "resolution_scale": RESOLUTION_SCALE,
-                    "reference": True, "restart": "reference_mesh", "per_frame": False, "members": 1}
+                    "reference": True, "restart": "reference_mesh", "per_frame": False, "members": 1, "views": []}
             unknown = set(sync) - set(opts)
             if unknown:
                 raise ValueError(f"hydra.callbacks.study.sync: unknown option(s) {sorted(unknown)}; "
                                  f"known: {sorted(opts)}")
             opts.update({k: sync[k] for k in sync})
+            views = opts["views"]
+            views = list(views) if isinstance(views, (list, tuple)) or OmegaConf.is_list(views) else views
+            if not (isinstance(views, list) and all(isinstance(v, str) for v in views)):
+                raise ValueError(f"hydra.callbacks.study.sync.views: a list of camera names (conf/camera/), "
+                                 f"got {opts['views']!r}")
+            opts["views"] = views
             check_options(opts["every"], opts["horizon"], opts["before_cut"], opts["resolution_scale"])
             for flag in ("reference", "per_frame"):
                 if not isinstance(opts[flag], bool):

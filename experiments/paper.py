@@ -17,7 +17,9 @@ and the crowd inherit the dancer's factor), ``ablation_buckling`` (the drape tes
 accuracy study's integration points (ACCURACY_FULL_ONLY), the anticipation ablation (five seeds)
 and the sweeps of nu_out, k, T and the margin. Others on
 request (``--studies``), among them ``crowd_scaling`` (beyond the paper: adaptive and
-view-dependent crowds of 1, 10 and 100 dancers; hours at scale=small, see docs/studies.md).
+view-dependent crowds of 1, 10 and 100 dancers; hours at scale=small, see docs/studies.md),
+``cameras`` and ``cameras_crowd`` (beyond the paper: a second camera) and ``live_camera`` (beyond the
+paper: a camera whose future is not known, on a continuous move).
 
 Runs each study as a Hydra multirun (``python -m experiments.run experiment=<study>``, joblib
 launcher, ``--jobs`` runs at a time: one by default, so that timed runs never compete) into
@@ -58,7 +60,8 @@ from experiments.progress import Heartbeat, JobClock, StudyWatch, planned_runs
 ROOT = Path(__file__).resolve().parents[1]
 # in the order they run (the accuracy study first: Table 1's non-adaptive row depends on it)
 STUDIES = ("accuracy", "table1", "ablation_buckling", "ablation_buckling_dancer", "ablation_anticipation",
-           "sweep_nu_out", "sweep_k", "sweep_T", "sweep_margin", "sweep_resolution", "crowd_scaling")
+           "sweep_nu_out", "sweep_k", "sweep_T", "sweep_margin", "sweep_resolution", "crowd_scaling",
+           "cameras", "cameras_crowd", "live_camera")
 DEFAULT_STUDIES = ("accuracy", "table1", "ablation_buckling", "ablation_buckling_dancer")
 # --full: the default studies and what the 90-minute job leaves out to fit, the anticipation ablation
 # and the four sweeps of the view-dependent method's parameters (crowd_scaling and the resolution

@@ -281,20 +281,38 @@ def _after_cut(runset: RunSet, r, cuts, column: str = "error_px") -> float:
 
 
 def lead_label(r) -> str:
-    """'off', or 'T=<frames>' for a run with anticipation."""
-    return f"T={r['T']:g}" if bool(r["anticipation"]) else "off"
+    """'off', or 'T=<frames>' for a run with anticipation; 'live T=<frames>' when its camera's
+    future was not known (mode.view.lookahead=false, cloth.view.live)."""
+    if not bool(r["anticipation"]):
+        return "off"
+    live = r.get("lookahead") is not None and r.get("lookahead") == r.get("lookahead") and not bool(r["lookahead"])
+    return f"{'live ' if live else ''}T={r['T']:g}"
 
 
-def anticipation(runset: RunSet, out) -> list[Path]:
-    runs = study_or_all(runset.runs, "ablation_anticipation", "accuracy")
+def live_camera(runset: RunSet, out) -> list[Path]:
+    """live_camera.*: the live_camera study's runs (a camera whose future is not known, on a
+    continuous move) as the anticipation table (:func:`anticipation`)."""
+    runs = runset.runs
+    if runs.empty or not (runs["study"] == "live_camera").any():
+        raise Skip("live_camera: no runs of the live_camera study")
+    return anticipation(runset, out, studies=("live_camera",), name="live_camera",
+                        title="A camera whose future is not known (mode.view.lookahead=false) against its "
+                              "prescribed path and against no anticipation")
+
+
+def anticipation(runset: RunSet, out, studies=("ablation_anticipation", "accuracy"),
+                 name: str = "ablation_anticipation",
+                 title: str = "Temporal anticipation of camera cuts (the paper's Fig. 3)") -> list[Path]:
+    runs = study_or_all(runset.runs, *studies)
     vd = runs[(runs["mode"] == "viewdep") & runs["anticipation"].notna()] if len(runs) else runs
     if vd.empty:
-        raise Skip("anticipation: no viewdep runs")
+        raise Skip(f"{name}: no viewdep runs")
     vd = vd.assign(lead=[lead_label(r) for _, r in vd.iterrows()], _seed=vd["seed"].fillna(0).astype(int))
     pts = pd.concat([one_factor(g, "lead", ANTICIPATION_OTHERS) for _, g in vd.groupby(["scene", "scale", "_seed"])])
     if pts.empty:
         raise Skip("anticipation: no viewdep runs that differ only in their anticipation (mode.view.anticipation, T)")
-    pts = pts.assign(_order=[-1.0 if lead == "off" else float(T) for lead, T in zip(pts["lead"], pts["T"])])
+    pts = pts.assign(_order=[-1.0 if lead == "off" else float(T) + 0.5 * lead.startswith("live")
+                             for lead, T in zip(pts["lead"], pts["T"])])
     pts = pts.sort_values(["scene", "scale", "_order", "_seed"]).drop(columns="_order")
     cuts = sorted({c for cs in pts["camera_cuts_s"] for c in cs})
     col = lambda name: pts[name].to_numpy() if name in pts.columns else np.full(len(pts), np.nan)  # noqa: E731
@@ -307,6 +325,7 @@ def anticipation(runset: RunSet, out) -> list[Path]:
                              "error_px_mean": pts["error_px_mean"].to_numpy(),
                              "error_px_after_cut_mean": after("error_px"),
                              "sync_error_px_cut_mean": col("sync_error_px_cut_mean"),
+                             "sync_error_px_mean": col("sync_error_px_mean"),
                              "popping_px_mean": col("popping_px_mean"),
                              "popping_px_after_cut_mean": after("popping_px")})
     table = over_seeds(per_seed)
@@ -323,22 +342,23 @@ def anticipation(runset: RunSet, out) -> list[Path]:
         for c in cuts:
             ax.axvline(c, color="0.2", ls=":", lw=1.0)
     axes[3].set_xlabel(f"simulated time (s); dotted: camera cuts (seed {int(shown['_seed'].min())})")
-    fig.suptitle("Temporal anticipation of camera cuts (the paper's Fig. 3)")
+    fig.suptitle(title)
     fig.tight_layout()
     cut_text = ", ".join(f"{c:g} s" for c in cuts) or "(no cut)"
-    return save_figure(fig, out, "ablation_anticipation") + write_table(
-        table, out, "ablation_anticipation",
-        f"Anticipation ablation (the paper's Fig. 3), over {table['seeds'].max()} seed(s): medians over the seeds, "
+    return save_figure(fig, out, name) + write_table(
+        table, out, name,
+        f"{title}, over {table['seeds'].max()} seed(s): medians over the seeds (sync_error_px_mean: every window's "
+        f"re-synchronised error), "
         f"after a cut: mean over {CUT_WINDOW_FRAMES} frames from each cut at {cut_text}; sync_error_px_cut_mean: "
         f"the re-synchronised error of the windows that start before a cut and end after it, its mean over the "
         f"seeds with the 90 % BCa interval, and cut_vs_off: its paired difference from the run without "
         f"anticipation of the same seed") + write_table(
-        per_seed, out, "ablation_anticipation_seeds", "Anticipation ablation, every seed")
+        per_seed, out, f"{name}_seeds", f"{title}, every seed")
 
 
 # per-seed columns whose median over the seeds the anticipation table gives
 SEED_MEDIANS = ("faces_mean", "time_mean_s", "faces_in_view_after_cut", "error_px_mean", "error_px_after_cut_mean",
-                "popping_px_mean", "popping_px_after_cut_mean")
+                "sync_error_px_mean", "popping_px_mean", "popping_px_after_cut_mean")
 
 
 def over_seeds(per_seed: pd.DataFrame) -> pd.DataFrame:
@@ -368,9 +388,9 @@ def over_seeds(per_seed: pd.DataFrame) -> pd.DataFrame:
 
 
 def make(runset: RunSet, out, paper_timings=None, log=print) -> list[Path]:
-    """ablation_buckling.* and ablation_anticipation.* (each when its runs are there)."""
+    """ablation_buckling.*, ablation_anticipation.* and live_camera.* (each when its runs are there)."""
     files, skipped = [], []
-    for fn in (buckling, drape, standing, anticipation):
+    for fn in (buckling, drape, standing, anticipation, live_camera):
         try:
             files += fn(runset, out)
         except Skip as exc:

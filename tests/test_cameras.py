@@ -100,3 +100,27 @@ def test_a_bad_camera_entry_is_refused_naming_it(override, key):
 def test_cameras_by_name_from_conf_camera():
     path = build_camera(compose_config(*BASE, "cameras=[orbit,sheet_cut]"))
     assert path.names == ("main", "orbit", "sheet_cut") and path.cuts == path.paths[2].cuts
+
+
+def test_the_cameras_table_gives_ratios_to_adaptive_and_every_view():
+    import pandas as pd
+
+    from paper_figures.cameras import camera_table
+
+    base = {"study": "cameras", "reference": False, "scene": "solo_dancer", "scale": "small",
+            "timestamp": "2026-01-01T00:00:00+00:00"}
+    rows = []
+    for seed in (0, 1):
+        for variant, mode, faces, time in (("adaptive", "adaptive", 2000.0, 0.4), ("viewdep", "viewdep", 1000.0, 0.25),
+                                           ("viewdep + side camera", "viewdep", 1600.0, 0.32)):
+            rows.append({**base, "variant": variant, "mode": mode, "seed": seed, "path": f"{variant}{seed}",
+                         "faces_mean": faces * (1 + seed), "time_mean_s": time * (1 + seed),
+                         "sync_error_px_mean": 10.0 + seed, "sync_error_px_lo": 9.0, "sync_error_px_hi": 11.0,
+                         "sync_error_px_view_side_wide_mean": 5.0 + seed, "sync_error_px_view_side_wide_lo": 4.0,
+                         "sync_error_px_view_side_wide_hi": 6.0})
+    table = camera_table(pd.DataFrame(rows)).set_index("variant")
+    two = table.loc["viewdep + side camera"]
+    assert two["seeds"] == 2 and two["faces_mean"] == 2400.0  # median of 1600 and 3200
+    assert two["faces_vs_adaptive"] == 3000.0 / 2400.0 and two["time_vs_adaptive"] == pytest.approx(0.6 / 0.48)
+    assert two["sync_error_px_mean"] == 10.0 and two["sync_error_px_view_side_wide_mean"] == 5.0  # the first seed's
+    assert table.loc["adaptive", "time_vs_adaptive"] == 1.0

@@ -111,3 +111,12 @@ def test_a_live_camera_survives_a_checkpoint(tmp_path):
     live = sim.remesher.camera
     assert isinstance(back, LiveCamera) and [t for t, _ in back.history] == [t for t, _ in live.history]
     assert back.history and back.camera_at(1.0) == live.camera_at(1.0)
+
+
+def test_the_anticipation_table_labels_a_live_camera():
+    from paper_figures.ablations import lead_label
+
+    assert lead_label({"anticipation": True, "T": 5.0, "lookahead": False}) == "live T=5"
+    assert lead_label({"anticipation": True, "T": 5.0, "lookahead": True}) == "T=5"
+    assert lead_label({"anticipation": True, "T": 5.0, "lookahead": float("nan")}) == "T=5"  # not viewdep
+    assert lead_label({"anticipation": False, "T": 5.0, "lookahead": False}) == "off"

@@ -39,7 +39,9 @@ SWEPT = {"nu_out": "mode.view.nu_out", "margin": "mode.view.margin", "T": "mode.
 # View settings that are not swept but that a sweep's points must share (a point of a sweep differs
 # from the others in its parameter only): the occlusion test (bool) and the contact floor (m; NaN
 # when off). NaN outside mode=viewdep.
-VIEW_HELD = {"occlusion": "mode.view.occlusion", "contact_size": "mode.view.contact_size"}
+VIEW_HELD = {"occlusion": "mode.view.occlusion", "contact_size": "mode.view.contact_size",
+             "lookahead": "mode.view.lookahead"}
+VIEW_HELD_BOOLS = {"occlusion": None, "lookahead": True}  # bool columns: the value of a config without the key
 SWEPT_COLUMNS = ("nu_out", "margin", "T", "anticipation", "l_min_px", "buckling_k", "buckling_mode",
                  "resolution_factor")
 ACCURACY_KEYS = ("error_px_mean", "error_px_max", "silhouette_px_mean", "surface_px_mean", "iou_mean",
@@ -313,7 +315,9 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
     row["anticipation"] = row["anticipation"] if mode == "viewdep" else math.nan
     for col, key in VIEW_HELD.items():
         v = effective_view_setting(cfg, key) if mode == "viewdep" else None
-        row[col] = math.nan if v is None else (bool(v) if col == "occlusion" else _float(v))
+        if v is None and mode == "viewdep":
+            v = VIEW_HELD_BOOLS.get(col)  # lookahead: runs from before the key looked ahead
+        row[col] = math.nan if v is None else (bool(v) if col in VIEW_HELD_BOOLS else _float(v))
     row["resolution_factor"] = _float(cfg.get("resolution_factor", 1.0)) if mode == "nonadaptive" else math.nan
     row["bending_hessian"] = _text(_get(cfg, "solver.bending_hessian")) or "projected"
     row["membrane_hessian"] = _text(_get(cfg, "solver.membrane_hessian")) or "projected"
@@ -374,6 +378,9 @@ def load_run(path) -> tuple[dict, pd.DataFrame, pd.DataFrame | None, list[str]]:
             sync = _read_json(path / "sync.json", "sync")
             for k, col in SYNC_KEYS.items():
                 row[col] = _float(sync.get(k))
+            for k in sync:  # seen from further cameras (the callback's sync.views): as named
+                if k.startswith(("sync_error_px_view_", "sync_error_mm_view_")):
+                    row[k] = _float(sync.get(k))
         except _Bad as exc:
             notes.append(f"{exc}; the run is kept without its re-synchronised error")
     for stem, col in REFERENCE_ERROR_FILES.items():

@@ -77,7 +77,7 @@ from cloth.io.states import StateError, load_state, require_restart
 from cloth.simulation import SimulationDiverged
 from experiments.analysis.accuracy import BOOTSTRAP, AccuracyError, check_configs, shot_index, state_files
 from experiments.analysis.accuracy import bootstrap_mean_interval as bootstrap_interval  # over windows here
-from experiments.build import ConfigError, build_simulation, camera_path, crowd_size
+from experiments.build import ConfigError, build_simulation, camera_path, crowd_size, extra_cameras
 
 EVERY, HORIZON, BEFORE_CUT = 10, 8, 5  # frames: the issue's defaults
 RESTARTS = ("reference_mesh", "own_mesh")  # on which mesh a remeshing mode restarts (module docstring)
@@ -169,9 +169,14 @@ def _members(ref_dir) -> list[Path]:
     return dirs
 
 
+def view_columns(name: str) -> tuple[str, str]:
+    """The window table's columns of the error seen from the extra view `name` (px, mm)."""
+    return f"sync_error_px_view_{name}", f"sync_error_mm_view_{name}"
+
+
 def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, before_cut: int = BEFORE_CUT,
                  resolution_scale: float = RESOLUTION_SCALE, log=None, restart: str = "reference_mesh",
-                 per_frame: bool = False, perturb_m: float = 0.0) -> pd.DataFrame:
+                 per_frame: bool = False, perturb_m: float = 0.0, views=()) -> pd.DataFrame:
     """The windows of one run against the reference (COLUMNS, one row per window); writes nothing.
     `ref_dir`: the reference's folder, or a list of the folders of a reference ensemble's members:
     then every window is restarted from each member's state and compared with that member's own
@@ -181,12 +186,20 @@ def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, b
     every window, as ``.attrs["per_frame"]`` (FRAME_COLUMNS, one row per window and frame).
     `perturb_m` > 0: every free node of the restart state is first moved `perturb_m` metres in a
     seeded random direction (:func:`perturbed`): the reference restarted so against itself gives the
-    floor that chaos alone sets within a window."""
+    floor that chaos alone sets within a window.
+    `views`: names of cameras of conf/camera/ (or camera configs, as `cameras` takes them) from which
+    the window's end is also measured (several cameras, beyond the paper): columns
+    :func:`view_columns` per view, beside the run's own camera's."""
     run_dir, members = Path(run_dir), _members(ref_dir)
     if restart not in RESTARTS:
         raise AccuracyError(f"--restart must be one of {', '.join(RESTARTS)}, got {restart!r}")
     planned = [plan(run_dir, m, every, horizon, before_cut, restart, per_frame) for m in members]  # all, before work
     own = state_files(run_dir) if restart == "own_mesh" else {}
+    cfg0 = planned[0][0]
+    try:
+        view_paths = extra_cameras({"cameras": list(views), "scene": OmegaConf.to_container(cfg0.scene, resolve=True)})
+    except ConfigError as exc:
+        raise AccuracyError(f"sync views: {exc}") from None
     rows, frame_rows = [], []
     for k, (member, (cfg, path, windows)) in enumerate(zip(members, planned)):
         states = state_files(member)
@@ -217,14 +230,21 @@ def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, b
                    "diverged": diverged, "sync_error_h0_px": h0["sync_error_px"],
                    "sync_error_h0_mm": h0["sync_error_mm"],
                    **dict.fromkeys(ERROR_KEYS, math.nan), "sync_samples": 0}
+            for name, _ in view_paths:
+                row.update(dict.fromkeys(view_columns(name), math.nan))
             if not diverged:
-                row.update(_error(sim, path, load_state(states[s + horizon][0]), resolution_scale))
+                end = load_state(states[s + horizon][0])
+                row.update(_error(sim, path, end, resolution_scale))
+                for name, view in view_paths:
+                    e = _error(sim, view, end, resolution_scale)
+                    px, mm = view_columns(name)
+                    row[px], row[mm] = e["sync_error_px"], e["sync_error_mm"]
             rows.append(row)
             if log:
                 log(f"  {run_dir.name}: {f'member {k}, ' if len(members) > 1 else ''}window {s}..{s + horizon}"
                     f"{' (before a cut)' if cut else ''}: {row['sync_error_px']:.2f} px "
                     f"({row['sync_error_mm']:.2f} mm), {row['faces_mean']:.0f} faces, {time.perf_counter() - t0:.1f} s")
-    table = pd.DataFrame(rows, columns=list(COLUMNS))
+    table = pd.DataFrame(rows, columns=list(COLUMNS) + [c for name, _ in view_paths for c in view_columns(name)])
     if per_frame:
         table.attrs["per_frame"] = pd.DataFrame(frame_rows, columns=list(FRAME_COLUMNS))
     return table
@@ -283,6 +303,12 @@ def summarize(table: pd.DataFrame, ref_dir, every, horizon, before_cut, resoluti
         cut = table["before_cut"].to_numpy(bool) & ok
         out.update({f"{measure}_mean": nan_or(err[ok]), f"{measure}_lo": None if math.isnan(lo) else lo,
                     f"{measure}_hi": None if math.isnan(hi) else hi, f"{measure}_cut_mean": nan_or(err[cut])})
+    for col in [c for c in table.columns if c.startswith(("sync_error_px_view_", "sync_error_mm_view_"))]:
+        err = table[col].to_numpy(dtype=np.float64)
+        ok = np.isfinite(err)
+        lo, hi = bootstrap_interval(err)
+        out.update({f"{col}_mean": nan_or(err[ok]), f"{col}_lo": None if math.isnan(lo) else lo,
+                    f"{col}_hi": None if math.isnan(hi) else hi})
     h0 = table["sync_error_h0_px"].to_numpy(float) if "sync_error_h0_px" in table.columns else np.zeros(0)
     return {**out,
             "sim_s_mean": nan_or(table["sim_s"].to_numpy(float)),

@@ -1,0 +1,77 @@
+"""Several cameras at once (beyond the paper): what a second camera costs, and what each camera sees.
+
+    python -m paper_figures.cameras ROOT [ROOT ...] [--out DIR]
+
+Runs: the cameras study's (conf/experiment/cameras.yaml: solo_dancer, adaptive, the paper's method
+with the scene's camera, and with the side camera as well, conf/point/cameras/two.yaml; against the
+fine reference) and the cameras_crowd study's (multiple_dancers, the same points, no reference: a
+crowd's windows cannot be restarted one character at a time). Writes cameras.csv and .md, one row
+per scene, scale and point:
+
+* faces_mean, time_mean_s: the runs' mean faces and simulation time per frame, medians over seeds;
+  faces_vs_adaptive, time_vs_adaptive: adaptive's over the point's (above 1: fewer, faster);
+* sync_error_px_mean (lo, hi): the re-synchronised error seen from the scene's own camera, and
+  sync_error_px_view_<name>_mean (lo, hi): from each further view the study measures (the
+  callback's sync.views), mean over the windows with their 90 % BCa interval (the first seed's).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from experiments.analysis.aggregate import latest
+
+from .common import RunSet, Skip, script_main, write_table
+
+STUDIES = ("cameras", "cameras_crowd")
+
+
+def camera_table(runs: pd.DataFrame) -> pd.DataFrame:
+    """The table of the module docstring from a runs table (empty without the studies' runs)."""
+    if runs.empty or "study" not in runs.columns:
+        return pd.DataFrame()
+    sel = runs[runs["study"].isin(STUDIES) & ~runs["reference"].astype(bool)]
+    if sel.empty:
+        return pd.DataFrame()
+    sel, _ = latest(sel, ("scene", "scale", "variant", "seed"))
+    views = sorted(c[: -len("_mean")] for c in sel.columns
+                   if c.startswith("sync_error_px_view_") and c.endswith("_mean"))
+    rows = []
+    for (scene, scale), g in sel.groupby(["scene", "scale"], sort=False):
+        base = g[g["mode"] == "adaptive"]
+        base_faces = float(base["faces_mean"].median()) if len(base) else np.nan
+        base_time = float(base["time_mean_s"].median()) if len(base) else np.nan
+        for variant, h in g.groupby("variant", sort=False):
+            first = h.sort_values("seed").iloc[0]
+            faces, time = float(h["faces_mean"].median()), float(h["time_mean_s"].median())
+            row = {"scene": scene, "scale": scale, "variant": variant, "mode": first["mode"], "seeds": int(len(h)),
+                   "faces_mean": faces, "time_mean_s": time, "faces_vs_adaptive": base_faces / faces,
+                   "time_vs_adaptive": base_time / time}
+            for col in ("sync_error_px", *views):
+                for part in ("mean", "lo", "hi"):
+                    key = f"{col}_{part}"
+                    row[key] = float(first[key]) if key in h.columns and pd.notna(first.get(key)) else np.nan
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def make(runset: RunSet, out, paper_timings=None, log=print) -> list[Path]:
+    table = camera_table(runset.runs)
+    if table.empty:
+        raise Skip("cameras: no runs of the cameras studies")
+    return write_table(table, out, "cameras",
+                       "Several cameras at once: faces and simulation time per frame (medians over seeds) and "
+                       "their ratios to adaptive's, and the re-synchronised error (px, 90 % BCa interval over the "
+                       "windows) seen from the scene's camera and from each further view")
+
+
+def main(argv=None) -> int:
+    return script_main(make, "cameras", argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
