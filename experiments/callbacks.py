@@ -22,6 +22,7 @@ A failure in either is reported and does not undo the runs: the folders stay as 
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import sys
 import traceback
@@ -108,7 +109,7 @@ def measure_accuracy(sweep_dir: Path, log=print, sync: dict | None = None) -> in
                 except AccuracyError as exc:  # e.g. a run too short for a window: the others go on
                     log(f"sync: {run.name} not measured: {exc}")
                     continue
-                write_sync(run, table, starts, **{k: v for k, v in opts.items() if k not in ("per_frame", "views")})
+                write_sync(run, table, starts, **{k: v for k, v in opts.items() if k not in NOT_WRITTEN})
             checks = [r for r in runs if cfgs[r].get("reference_check") and cfgs[r]["scene"]["name"] == scene
                       and cfgs[r].get("seed") == seed and _completed(r)]
             if checks:
@@ -131,8 +132,13 @@ def measured_already(run: Path, starts, opts: dict) -> bool:
     same = all(done.get(k) == opts[k] for k in ("every", "horizon", "before_cut", "resolution_scale", "restart")
                if k in opts)
     views = all(f"sync_error_px_view_{v}_mean" in done for v in opts.get("views") or [])
+    views = views and (not opts.get("perceptual") or "flip_mean" in done)
     return (same and views and done.get("reference") == str(starts[0].resolve())
             and done.get("members") == len(starts) and written > finished)
+
+
+# the sync options that write_sync does not take (what was measured is in the table's columns)
+NOT_WRITTEN = ("per_frame", "views", "perceptual")
 
 
 # The perturbed restart's displacement: 0.1 mm, a thousandth of the study's edges (centimetres) and far
@@ -147,7 +153,7 @@ def reference_error(ref: Path, checks: dict, opts: dict, log=print) -> None:
     segments, half_dt: half its time step) against the check's continuation, into the reference's
     folder as sync_<check>.parquet/.json; and the reference restarted from its own states moved by
     FLOOR_PERTURBATION_M against itself (sync_floor.*: the floor chaos sets within a window)."""
-    write_opts = {k: v for k, v in opts.items() if k not in ("per_frame", "views")}
+    write_opts = {k: v for k, v in opts.items() if k not in NOT_WRITTEN}
     for check, run in sorted(checks.items()):
         log(f"sync: the reference {ref.name} restarted from {run.name}'s states (its own error: {check})")
         try:
@@ -193,7 +199,8 @@ class StudyCallback(Callback):
         self.sync = None
         if sync is not None:
             opts = {"every": EVERY, "horizon": HORIZON, "before_cut": BEFORE_CUT, "resolution_scale": RESOLUTION_SCALE,
-                    "reference": True, "restart": "reference_mesh", "per_frame": False, "members": 1, "views": []}
+                    "reference": True, "restart": "reference_mesh", "per_frame": False, "members": 1, "views": [],
+                    "perceptual": False}
             unknown = set(sync) - set(opts)
             if unknown:
                 raise ValueError(f"hydra.callbacks.study.sync: unknown option(s) {sorted(unknown)}; "
@@ -206,9 +213,12 @@ class StudyCallback(Callback):
                                  f"got {opts['views']!r}")
             opts["views"] = views
             check_options(opts["every"], opts["horizon"], opts["before_cut"], opts["resolution_scale"])
-            for flag in ("reference", "per_frame"):
+            for flag in ("reference", "per_frame", "perceptual"):
                 if not isinstance(opts[flag], bool):
                     raise ValueError(f"hydra.callbacks.study.sync.{flag}: true or false, got {opts[flag]!r}")
+            if opts["perceptual"] and importlib.util.find_spec("flip_evaluator") is None:
+                raise ValueError("hydra.callbacks.study.sync.perceptual: FLIP needs the flip-evaluator package "
+                                 "(pip install -e '.[perceptual]'), which is not installed")
             m = opts["members"]
             if not (isinstance(m, int) and not isinstance(m, bool) and m >= 1):
                 raise ValueError(f"hydra.callbacks.study.sync.members: an integer >= 1, got {opts['members']!r}")

@@ -121,18 +121,21 @@ def test_a_study_measured_again_skips_the_windows_it_has_measured(study):
 
 def test_a_window_seen_from_a_further_view_is_measured_as_from_the_runs_camera(study):
     """sync.views: the window's end measured from further cameras as well (several cameras, beyond
-    the paper). From the run's own camera (sheet_half) it is the run's own error; from the sheet's
-    other half (sheet_cut's second shot, as a camera config) another one."""
+    the paper), and sync.perceptual: FLIP there. From the run's own camera (sheet_half) it is the
+    run's own error; from the sheet's other half (sheet_cut's second shot, as a camera config)
+    another one."""
     from experiments.analysis.sync import evaluate_run, summarize, view_columns
 
     base, _ = study
     opts = {k: v for k, v in SYNC.items() if k not in ("reference", "members")}
     other = {"name": "minus", "position": [-0.3, 0.0, 1.5], "target": [-0.3, 0.0, 0.0], "up": [-1.0, 0.0, 0.0],
              "fov_y_deg": 22.6}
-    table = evaluate_run(base / "3_fixed", base / "0_ref", **opts, views=["sheet_half", other])
+    table = evaluate_run(base / "3_fixed", base / "0_ref", **opts, views=["sheet_half", other], perceptual=True)
     same_px, same_mm = view_columns("sheet_half")
     assert np.allclose(table[same_px], table["sync_error_px"]) and np.allclose(table[same_mm], table["sync_error_mm"])
     minus_px, _ = view_columns("minus")
     assert np.all(np.isfinite(table[minus_px])) and not np.allclose(table[minus_px], table["sync_error_px"])
     s = summarize(table, base / "0_ref", opts["every"], opts["horizon"], opts["before_cut"], opts["resolution_scale"])
     assert s["sync_error_px_view_sheet_half_mean"] == pytest.approx(s["sync_error_px_mean"])
+    # and the perceptual error (sync.perceptual): FLIP between shaded renders at each window's end
+    assert np.all((table["flip"] > 0) & (table["flip"] < 1)) and s["flip_mean"] == pytest.approx(table["flip"].mean())

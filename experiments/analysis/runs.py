@@ -53,7 +53,8 @@ ACCURACY_KEYS = ("error_px_mean", "error_px_max", "silhouette_px_mean", "surface
 SYNC_KEYS = {**{f"{m}_{s}": f"{m}_{s}" for m in ("sync_error_px", "sync_error_mm", "sync_error_px1080")
                 for s in ("mean", "lo", "hi", "cut_mean")},
              "windows": "sync_windows", "horizon": "sync_horizon", "members": "sync_members",
-             "sim_s_mean": "sync_sim_s_mean", "faces_mean": "sync_faces_mean"}  # the windows' own cost
+             "sim_s_mean": "sync_sim_s_mean", "faces_mean": "sync_faces_mean",  # the windows' own cost
+             **{f"flip_{s}": f"sync_flip_{s}" for s in ("mean", "lo", "hi")}}  # FLIP (sync.perceptual)
 # The reference's own error (experiments.callbacks.reference_error), on a reference's row:
 # <file>.json's sync_error_px_mean / sync_error_mm_mean -> <column>_px / <column>_mm
 REFERENCE_ERROR_FILES = {"sync_fine": "reference_error_fine", "sync_half_dt": "reference_error_half_dt",

@@ -71,6 +71,7 @@ from omegaconf import OmegaConf
 
 from cloth.eval import correspondence
 from cloth.eval.correspondence import ERROR_KEYS, correspondence_error
+from cloth.eval.perceptual import flip_error, render_shaded
 from cloth.eval.screenspace import render_state
 from cloth.io.manifest import write_json_atomic, write_parquet_atomic
 from cloth.io.states import StateError, load_state, require_restart
@@ -161,6 +162,14 @@ def _error(sim, path, ref: dict, resolution_scale: float) -> dict:
     return correspondence_error(camera, image, ref, run)
 
 
+def _flip(sim, path, ref: dict, resolution_scale: float) -> float:
+    """FLIP between shaded renders of the reference state `ref` and of the simulation's cloth now
+    (with the reference's obstacles, at the same time), from the camera at that time."""
+    camera = path.camera_at(ref["time"])
+    run = {**ref, "node_x": sim.mesh.node_x, "face_nodes": sim.mesh.face_nodes}
+    return flip_error(render_shaded(camera, ref, resolution_scale), render_shaded(camera, run, resolution_scale))
+
+
 def _members(ref_dir) -> list[Path]:
     """The reference folders of `ref_dir`: one folder, or a list (the members of an ensemble, member 0 first)."""
     dirs = [Path(ref_dir)] if isinstance(ref_dir, (str, Path)) else [Path(d) for d in ref_dir]
@@ -176,7 +185,7 @@ def view_columns(name: str) -> tuple[str, str]:
 
 def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, before_cut: int = BEFORE_CUT,
                  resolution_scale: float = RESOLUTION_SCALE, log=None, restart: str = "reference_mesh",
-                 per_frame: bool = False, perturb_m: float = 0.0, views=()) -> pd.DataFrame:
+                 per_frame: bool = False, perturb_m: float = 0.0, views=(), perceptual: bool = False) -> pd.DataFrame:
     """The windows of one run against the reference (COLUMNS, one row per window); writes nothing.
     `ref_dir`: the reference's folder, or a list of the folders of a reference ensemble's members:
     then every window is restarted from each member's state and compared with that member's own
@@ -189,7 +198,9 @@ def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, b
     floor that chaos alone sets within a window.
     `views`: names of cameras of conf/camera/ (or camera configs, as `cameras` takes them) from which
     the window's end is also measured (several cameras, beyond the paper): columns
-    :func:`view_columns` per view, beside the run's own camera's."""
+    :func:`view_columns` per view, beside the run's own camera's.
+    `perceptual`: also FLIP between shaded renders of the reference's and the run's cloth at the
+    window's end (cloth.eval.perceptual; column ``flip``, needs the flip-evaluator package)."""
     run_dir, members = Path(run_dir), _members(ref_dir)
     if restart not in RESTARTS:
         raise AccuracyError(f"--restart must be one of {', '.join(RESTARTS)}, got {restart!r}")
@@ -230,11 +241,14 @@ def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, b
                    "diverged": diverged, "sync_error_h0_px": h0["sync_error_px"],
                    "sync_error_h0_mm": h0["sync_error_mm"],
                    **dict.fromkeys(ERROR_KEYS, math.nan), "sync_samples": 0}
+            row["flip"] = math.nan
             for name, _ in view_paths:
                 row.update(dict.fromkeys(view_columns(name), math.nan))
             if not diverged:
                 end = load_state(states[s + horizon][0])
                 row.update(_error(sim, path, end, resolution_scale))
+                if perceptual:
+                    row["flip"] = _flip(sim, path, end, resolution_scale)
                 for name, view in view_paths:
                     e = _error(sim, view, end, resolution_scale)
                     px, mm = view_columns(name)
@@ -244,7 +258,8 @@ def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, b
                 log(f"  {run_dir.name}: {f'member {k}, ' if len(members) > 1 else ''}window {s}..{s + horizon}"
                     f"{' (before a cut)' if cut else ''}: {row['sync_error_px']:.2f} px "
                     f"({row['sync_error_mm']:.2f} mm), {row['faces_mean']:.0f} faces, {time.perf_counter() - t0:.1f} s")
-    table = pd.DataFrame(rows, columns=list(COLUMNS) + [c for name, _ in view_paths for c in view_columns(name)])
+    table = pd.DataFrame(rows, columns=list(COLUMNS) + ["flip"]
+                         + [c for name, _ in view_paths for c in view_columns(name)])
     if per_frame:
         table.attrs["per_frame"] = pd.DataFrame(frame_rows, columns=list(FRAME_COLUMNS))
     return table
@@ -303,7 +318,8 @@ def summarize(table: pd.DataFrame, ref_dir, every, horizon, before_cut, resoluti
         cut = table["before_cut"].to_numpy(bool) & ok
         out.update({f"{measure}_mean": nan_or(err[ok]), f"{measure}_lo": None if math.isnan(lo) else lo,
                     f"{measure}_hi": None if math.isnan(hi) else hi, f"{measure}_cut_mean": nan_or(err[cut])})
-    for col in [c for c in table.columns if c.startswith(("sync_error_px_view_", "sync_error_mm_view_"))]:
+    for col in [c for c in table.columns if c.startswith(("sync_error_px_view_", "sync_error_mm_view_"))
+                or (c == "flip" and table[c].notna().any())]:
         err = table[col].to_numpy(dtype=np.float64)
         ok = np.isfinite(err)
         lo, hi = bootstrap_interval(err)
