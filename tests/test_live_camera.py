@@ -120,3 +120,21 @@ def test_the_anticipation_table_labels_a_live_camera():
     assert lead_label({"anticipation": True, "T": 5.0, "lookahead": True}) == "T=5"
     assert lead_label({"anticipation": True, "T": 5.0, "lookahead": float("nan")}) == "T=5"  # not viewdep
     assert lead_label({"anticipation": False, "T": 5.0, "lookahead": False}) == "off"
+
+
+def test_a_restart_never_sees_the_future_and_sees_the_frames_before_it():
+    """A first observation at t (a window restarted mid-run) first observes the frames of the
+    last ERROR_WINDOW_S; time going back (a restart at an earlier frame) forgets every later pose."""
+    path = OrbitPath(center=(0.0, 0.0, 0.5), radius=2.0, height=0.5, period_s=8.0)
+    fresh = LiveCamera(path, FRAME)
+    fresh.observe(1.0)
+    running = LiveCamera(path, FRAME)
+    for k in range(26):
+        running.observe(k * FRAME)  # from 0 to 1.0 s, frame by frame
+    assert [t for t, _ in fresh.history] == pytest.approx([t for t, _ in running.history])
+    a, b = fresh.camera_at(1.2), running.camera_at(1.2)  # the same prediction, the same widening
+    assert np.allclose(a.position, b.position, atol=POSE_TOL) and a.fov_y_deg == pytest.approx(b.fov_y_deg)
+    assert a.fov_y_deg > path.camera_at(1.2).fov_y_deg  # the errors were measured on the frames before
+    running.observe(0.5)  # restarted at an earlier frame
+    assert max(t for t, _ in running.history) == pytest.approx(0.5)
+    assert running.camera_at(0.9) != path.camera_at(0.9)  # a prediction, not the pose it had seen

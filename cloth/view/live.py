@@ -61,6 +61,7 @@ class LiveCamera(CameraPath):
     are the path's, later ones predicted and widened by the predictor's measured error."""
 
     path: CameraPath
+    frame_time: float | None = None  # s; with it a first observation also sees the frames before (observe)
     # plain lists (a checkpoint holds only the project's classes, numpy and a few builtins)
     history: list = field(default_factory=list)  # [(t, Camera)] observed, the last HISTORY
     errors: list = field(default_factory=list)  # [(t observed, horizon s, error rad)] over ERROR_WINDOW_S
@@ -71,8 +72,25 @@ class LiveCamera(CameraPath):
     # ---- what the live source hands over --------------------------------------------------
     def observe(self, t: float) -> None:
         """The pose at time t becomes known (a remesh at t); the predictions made for t from the
-        earlier poses are scored, and a cut since the last pose drops the history before it."""
+        earlier poses are scored, and a cut since the last pose drops the history before it.
+
+        Time going back (a simulation restarted at an earlier frame) starts the history afresh, so
+        that no pose after t is ever known at t. A first observation (or one after time went back)
+        with `frame_time` first observes the frames of the last ERROR_WINDOW_S, as a live source
+        running since then would have: a run restarted mid-way predicts as the uninterrupted one."""
         t = float(t)
+        if self.history and t < self.history[-1][0] - TIME_EPS:
+            self.history, self.errors = [], []
+        if self.history and t <= self.history[-1][0] + TIME_EPS:
+            return
+        if not self.history and self.frame_time:
+            n = int(round(ERROR_WINDOW_S / float(self.frame_time)))
+            for k in range(n, 0, -1):
+                if t - k * self.frame_time >= -TIME_EPS:
+                    self._observe(max(t - k * self.frame_time, 0.0))
+        self._observe(t)
+
+    def _observe(self, t: float) -> None:
         if self.history and t <= self.history[-1][0] + TIME_EPS:
             return
         cam = self.path.camera_at(t)
@@ -178,8 +196,8 @@ def _predict(history, t: float) -> Camera:
     return Camera(tuple(pos), tuple(pos + dist * fwd), tuple(up), c1.fov_y_deg, c1.width, c1.height, c1.near, c1.far)
 
 
-def live_camera(path: CameraPath) -> CameraPath:
+def live_camera(path: CameraPath, frame_time: float | None = None) -> CameraPath:
     """`path` as a live source: a LiveCamera, or a rig of them for a rig's cameras."""
     if isinstance(path, CameraRig):
-        return CameraRig([LiveCamera(p) for _, p in rig_paths(path)], path.names)
-    return LiveCamera(path)
+        return CameraRig([LiveCamera(p, frame_time) for _, p in rig_paths(path)], path.names)
+    return LiveCamera(path, frame_time)

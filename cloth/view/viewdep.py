@@ -140,7 +140,7 @@ class ViewDependentRemesher(AdaptiveRemesher):
         if self.camera is None:
             raise ViewError("mode=viewdep needs a camera path (camera=...)")
         if not self.view.lookahead:  # the sizing sees the camera as a live source (cloth.view.live)
-            self.camera = live_camera(self.camera)
+            self.camera = live_camera(self.camera, self.frame_time)
         self.last = {}
         self.seen = {}  # camera name -> (F,) bool: the faces it saw at the last sizing (view_factors)
         self._idle = False  # the last remesh was of a character out of view and changed nothing
