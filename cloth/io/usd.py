@@ -45,6 +45,18 @@ def _name(text: str) -> str:
     return name if not name[0].isdigit() else f"_{name}"
 
 
+def _stage_settings(stage, frame_time: float) -> None:
+    """Z up, metres, the frame rate as time codes per second, and /World as the default prim."""
+    from pxr import UsdGeom  # noqa: PLC0415 - see UsdRecorder
+
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    fps = 1.0 / float(frame_time)
+    stage.SetTimeCodesPerSecond(fps)
+    stage.SetFramesPerSecond(fps)
+    stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, "/World").GetPrim())
+
+
 def camera_matrix(cam) -> np.ndarray:
     """(4, 4) world-from-camera of a pinhole camera in USD's convention (row vectors: a point p
     maps to [p, 1] @ M; the camera looks down its -Z axis with +Y up)."""
@@ -79,13 +91,7 @@ class UsdRecorder(Recorder):
             self.path.unlink(missing_ok=True)
             self.stage = Usd.Stage.CreateNew(str(self.path))
         stage = self.stage
-        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
-        UsdGeom.SetStageMetersPerUnit(stage, 1.0)
-        fps = 1.0 / float(frame_time)
-        stage.SetTimeCodesPerSecond(fps)
-        stage.SetFramesPerSecond(fps)
-        world = UsdGeom.Xform.Define(stage, "/World")
-        stage.SetDefaultPrim(world.GetPrim())
+        _stage_settings(stage, frame_time)
         self.cloth = UsdGeom.Mesh.Define(stage, "/World/Cloth")
         self.cloth.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
         pv = UsdGeom.PrimvarsAPI(self.cloth)
@@ -179,13 +185,7 @@ def write_crowd_stage(path, characters, frame_time: float) -> Path:
     path = Path(path)
     path.unlink(missing_ok=True)
     stage = Usd.Stage.CreateNew(str(path))
-    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
-    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
-    fps = 1.0 / float(frame_time)
-    stage.SetTimeCodesPerSecond(fps)
-    stage.SetFramesPerSecond(fps)
-    world = UsdGeom.Xform.Define(stage, "/World")
-    stage.SetDefaultPrim(world.GetPrim())
+    _stage_settings(stage, frame_time)
     start, end = [], []
     for folder in characters:
         layer = Path(folder) / USD_FILE
