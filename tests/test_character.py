@@ -148,3 +148,34 @@ def test_a_mannequin_posed_again_at_a_time_it_kept_is_posed_exactly_as_anew():
         fresh.set_time(t)
         assert np.array_equal(cached.ends, fresh.ends) and np.array_equal(cached.end_velocities, fresh.end_velocities)
     assert len(cached._posed) == POSED_CACHE
+
+
+def test_forward_kinematics_skips_rest_joints_and_caches_by_time_with_the_same_numbers():
+    """A joint at rest takes its parent's rotation without the product by the identity, and the
+    mannequin keeps each time's kinematics for its contact and its garments' handles: the numbers
+    are those of the plain product chain, to the last bit."""
+    from cloth.scenes.character import SKELETON, _rot, forward_kinematics
+
+    def plain(pose):  # every joint's rotation multiplied in, rest or not
+        out = {}
+        for name, (parent, offset) in SKELETON.items():
+            R_local = _rot(pose.angles.get(name, (0.0, 0.0, 0.0)))
+            if parent is None:
+                out[name] = (_rot((0.0, 0.0, pose.heading)) @ R_local,
+                             np.asarray(offset, float) + np.asarray(pose.root, float))
+            else:
+                Rp, pp = out[parent]
+                out[name] = (Rp @ R_local, pp + Rp @ np.asarray(offset, float))
+        return out
+
+    body = Mannequin(Karate(), position=(1.0, 2.0, 0.0), heading=0.7)
+    for t in np.linspace(0.0, 6.0, 31):
+        pose = body.pose_at(t)
+        assert any(not any(a) for a in pose.angles.values()) or len(pose.angles) < len(SKELETON)
+        fast, slow = forward_kinematics(pose), plain(pose)
+        for name in SKELETON:
+            assert np.array_equal(fast[name][0], slow[name][0]) and np.array_equal(fast[name][1], slow[name][1])
+        cached = body.frames_at(t)
+        assert body.frames_at(t) is cached and all(np.array_equal(cached[k][0], fast[k][0]) for k in SKELETON)
+        assert np.array_equal(body.endpoints_at(t), capsule_endpoints(pose) @ np.array(
+            [[np.cos(0.7), np.sin(0.7), 0.0], [-np.sin(0.7), np.cos(0.7), 0.0], [0.0, 0.0, 1.0]]) + [1.0, 2.0, 0.0])

@@ -94,24 +94,33 @@ class Pose:
 
 
 def forward_kinematics(pose: Pose) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """World (rotation, position) of every joint."""
+    """World (rotation, position) of every joint.
+
+    A joint at rest (all its angles 0: _rot gives the identity exactly) takes its parent's
+    rotation as it is, without the product by the identity, which would give the same numbers
+    (each entry a * 1 + b * 0 + c * 0 = a): the same result at a third of the cost for a pose
+    that moves a few joints."""
     out = {}
     for name, (parent, offset) in SKELETON.items():
-        R_local = _rot(pose.angles.get(name, (0.0, 0.0, 0.0)))
+        angles = pose.angles.get(name)
+        rest = angles is None or not any(angles)
         if parent is None:
-            R = _rot((0.0, 0.0, pose.heading)) @ R_local
+            R = _rot((0.0, 0.0, pose.heading))
+            if not rest:
+                R = R @ _rot(angles)
             p = np.asarray(offset, float) + np.asarray(pose.root, float)
         else:
             Rp, pp = out[parent]
-            R = Rp @ R_local
+            R = Rp if rest else Rp @ _rot(angles)
             p = pp + Rp @ np.asarray(offset, float)
         out[name] = (R, p)
     return out
 
 
-def capsule_endpoints(pose: Pose) -> np.ndarray:
-    """(K, 2, 3) world endpoints of the capsules (CAPSULE_NAMES order)."""
-    frames = forward_kinematics(pose)
+def capsule_endpoints(pose: Pose, frames: dict | None = None) -> np.ndarray:
+    """(K, 2, 3) world endpoints of the capsules (CAPSULE_NAMES order); `frames`: the pose's
+    forward kinematics when already computed."""
+    frames = forward_kinematics(pose) if frames is None else frames
     ends = np.empty((len(CAPSULES), 2, 3))
     for k, (joint, a, b, _) in enumerate(CAPSULES.values()):
         R, p = frames[joint]
@@ -279,9 +288,20 @@ class Mannequin(CapsuleUnion):
         """The motion's pose at scene time t (s), after the delay (unplaced: the body's own frame)."""
         return self.motion.pose(motion_time(t, self.phase))
 
+    def frames_at(self, t: float) -> dict:
+        """forward_kinematics of the pose at scene time t, unplaced (the last POSED_CACHE times kept:
+        the body's contact and the garments' handles ask for the same times)."""
+        key = float(t)
+        cache = self.__dict__.setdefault("_frames", {})  # (a checkpoint of a version without it)
+        if key not in cache:
+            if len(cache) >= 3 * POSED_CACHE:  # each posed time asks for t and t +- VELOCITY_STEP
+                cache.pop(next(iter(cache)))
+            cache[key] = forward_kinematics(self.pose_at(t))
+        return cache[key]
+
     def endpoints_at(self, t: float) -> np.ndarray:
         """(K, 2, 3) world capsule endpoints at time t."""
-        ends = capsule_endpoints(self.pose_at(t))
+        ends = capsule_endpoints(None, self.frames_at(t))
         c, s = np.cos(self.place_heading), np.sin(self.place_heading)
         R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         return ends @ R.T + self.offset

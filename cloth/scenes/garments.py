@@ -48,7 +48,7 @@ class JointMotion:
     joint: str
 
     def pose(self, t: float):
-        R, p = forward_kinematics(self.body.pose_at(t))[self.joint]
+        R, p = self.body.frames_at(t)[self.joint]
         Rh = _heading(self.body.place_heading)
         return Rh @ R, Rh @ p + self.body.offset
 
