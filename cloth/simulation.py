@@ -98,6 +98,11 @@ from cloth.view.paths import cameras_at
 CONTACT_BAND = 0.5
 # Bound of the contour-minimisation iterations after a remesh (the record says what is left).
 UNTANGLE_ITERATIONS = 30
+# Obstacle substeps (obstacle_steps) count the vertices within what they and the cloth cover in a
+# frame of the cloth's bounding box, plus this many thicknesses: a contact acts from the thickness
+# on, and the box of the frame's start misses the cloth's own motion only by its fastest node's
+# travel, which the reach already holds; two thicknesses more is room for the curve of the motion.
+OBSTACLE_REACH_MARGIN = 2.0
 
 
 class Remesher:
@@ -242,15 +247,30 @@ class Simulation(StepControl, Restart, FrameRecord):
         return record
 
     def obstacle_steps(self) -> int:
-        """Steps this frame needs so that no mesh-obstacle vertex moves more than scene.obstacle_step
-        x thickness in one step: the fastest vertex speed at the frame's start, middle and end,
-        times the frame time, over that distance (a contact is then found before it is passed)."""
+        """Steps this frame needs so that no mesh-obstacle vertex that can reach the cloth moves more
+        than scene.obstacle_step x thickness in one step: the fastest such vertex's speed at the
+        frame's start, middle and end, times the frame time, over that distance (a contact is then
+        found before it is passed).
+
+        A vertex can reach the cloth this frame when its distance to the cloth's bounding box is
+        within what it and the cloth's fastest node cover in the frame, plus the thickness
+        (OBSTACLE_REACH_MARGIN of it); a fast part of an obstacle far from the cloth (sphere.json's
+        ball on its way back, a hand swinging away from a skirt) asks for no substeps."""
         scene = self.scene
+        x, v_cloth = self.mesh.node_x, self.mesh.node_v
+        lo, hi = x.min(axis=0), x.max(axis=0)
+        cloth_reach = float(np.sqrt((v_cloth * v_cloth).sum(axis=1).max())) * scene.frame_time if len(x) else 0.0
         speed = 0.0
         for ob in self.mesh_obstacles:
             for a in (0.0, 0.5, 1.0):
-                _, v = ob.state_at(self.time + a * scene.frame_time)
-                speed = max(speed, float(np.sqrt((v * v).sum(axis=1).max())) if v.size else 0.0)
+                y, v = ob.state_at(self.time + a * scene.frame_time)
+                if not v.size:
+                    continue
+                vs = np.sqrt((v * v).sum(axis=1))
+                gap = np.sqrt((np.maximum(lo - y, 0.0) ** 2 + np.maximum(y - hi, 0.0) ** 2).sum(axis=1))
+                near = gap <= vs * scene.frame_time + cloth_reach + OBSTACLE_REACH_MARGIN * scene.thickness
+                if near.any():
+                    speed = max(speed, float(vs[near].max()))
         return max(int(np.ceil(speed * scene.frame_time / (scene.obstacle_step * scene.thickness))), 1)
 
     def step(self, timings: dict, stats: dict) -> None:

@@ -177,9 +177,9 @@ def test_five_frames_of_a_constructed_scene_in_each_mode(tmp_path, mode):
 def test_a_fast_obstacle_gets_substeps_so_that_it_moves_at_most_half_the_thickness_per_step(tmp_path):
     """Two keys 1 s apart with zero end tangents (ARCSim's Hermite): the ball's speed is
     1.9 m x (6 t - 6 t^2), 2.85 m/s at t = 0.5 s; over a 0.04 s frame that is 0.114 m, 45.6 half
-    thicknesses (2.5 mm): 46 steps instead of the conf's 4. The first frame's fastest sample is its
-    end, 1.9 (6 0.04 - 6 0.04^2) = 0.438 m/s: 7.004 half thicknesses, 8 steps; a ball at rest
-    keeps the conf's 4."""
+    thicknesses (2.5 mm): 46 steps instead of the conf's 4 where the sheet is within its reach. A
+    ball that cannot reach the sheet within the frame (the first frame's, 18 cm below it at 0.44 m/s,
+    and the fast ball 0.5 m or 10 m away) asks for none, and a ball at rest keeps the conf's 4."""
     from cloth.simulation import Simulation
 
     motions = [[{"time": 0, "transform": {"scale": 0.12}},
@@ -187,10 +187,16 @@ def test_a_fast_obstacle_gets_substeps_so_that_it_moves_at_most_half_the_thickne
     scene = arcsim_scene(conf=str(_write_scene(tmp_path, motions=motions)))
     assert scene.obstacle_step == 0.5
     sim = Simulation(scene)
-    sim.time = 0.5
-    assert sim.obstacle_steps() == 46
     sim.time = 0.0
-    assert sim.advance_frame()["steps"] == 8
+    assert sim.advance_frame()["steps"] == 4  # the ball 18 cm under the sheet moves 1.8 cm this frame
+    sim.time = 0.5
+    assert sim.obstacle_steps() == 1  # the ball 0.5 m off the sheet's box: it cannot reach it this frame
+    x = sim.mesh.node_x.copy()
+    sim.mesh.node_x[:, 1] += 0.95  # the sheet over the ball at t = 0.5 s (y = 0.95 m), 3 cm above its top
+    sim.mesh.node_x[:, 2] = 0.15
+    assert sim.obstacle_steps() == 46
+    sim.mesh.node_x[:] = x + [10.0, 0.0, 0.0]  # 10 m aside
+    assert sim.obstacle_steps() == 1
     still = [[{"time": 0, "transform": {"scale": 0.12}}, {"time": 1, "transform": {"scale": 0.12}}]]
     sim = Simulation(arcsim_scene(conf=str(_write_scene(tmp_path, motions=still))))
     assert sim.obstacle_steps() == 1 and sim.advance_frame()["steps"] == 4
