@@ -11,11 +11,13 @@ found of adaptive's quality: by the millimetre windows, the coarsest not worse t
 more than the equivalence margin, at its factor interpolated between the study's resolutions
 (conf/point/fixed_factor); else the coarsest whose error is not told apart as worse than
 adaptive's; the preset's own fixed mesh when the accuracy study is not run or finds none; karate
-and the crowd inherit the dancer's factor), ``ablation_buckling`` (the drape test) and
-``ablation_buckling_dancer`` (the standing dancer).
+takes its own when ``accuracy_karate`` ran, else it inherits the dancer's factor, as the crowd
+does, and the log says so), ``ablation_buckling`` (the drape test) and ``ablation_buckling_dancer``
+(the standing dancer).
 ``--full`` adds what the default job leaves out to fit in about 90 minutes on 2 cores: the
-accuracy study's integration points (ACCURACY_FULL_ONLY), the anticipation ablation (five seeds)
-and the sweeps of nu_out, k, T and the margin. Others on
+accuracy study's integration points (ACCURACY_FULL_ONLY), karate's own accuracy study
+(``accuracy_karate``), the anticipation ablation (five seeds) and the sweeps of nu_out, k, T and
+the margin. Others on
 request (``--studies``), among them ``crowd_scaling`` (beyond the paper: adaptive and
 view-dependent crowds of 1, 10 and 100 dancers; hours at scale=small, see docs/studies.md),
 ``cameras`` and ``cameras_crowd`` (beyond the paper: a second camera) and ``live_camera`` (beyond the
@@ -59,14 +61,16 @@ from experiments.progress import Heartbeat, JobClock, StudyWatch, planned_runs
 
 ROOT = Path(__file__).resolve().parents[1]
 # in the order they run (the accuracy study first: Table 1's non-adaptive row depends on it)
-STUDIES = ("accuracy", "table1", "ablation_buckling", "ablation_buckling_dancer", "ablation_anticipation",
-           "sweep_nu_out", "sweep_k", "sweep_T", "sweep_margin", "sweep_resolution", "crowd_scaling",
-           "cameras", "cameras_crowd", "live_camera")
+STUDIES = ("accuracy", "accuracy_karate", "table1", "ablation_buckling", "ablation_buckling_dancer",
+           "ablation_anticipation", "sweep_nu_out", "sweep_k", "sweep_T", "sweep_margin", "sweep_resolution",
+           "crowd_scaling", "cameras", "cameras_crowd", "live_camera")
 DEFAULT_STUDIES = ("accuracy", "table1", "ablation_buckling", "ablation_buckling_dancer")
-# --full: the default studies and what the 90-minute job leaves out to fit, the anticipation ablation
+# --full: the default studies and what the 90-minute job leaves out to fit, karate's own accuracy
+# study (its Table 1 row then at karate's own fixed mesh of adaptive's quality), the anticipation ablation
 # and the four sweeps of the view-dependent method's parameters (crowd_scaling and the resolution
 # sweep stay on request: hours, and the accuracy study already sweeps the fixed mesh)
-FULL_STUDIES = (*DEFAULT_STUDIES, "ablation_anticipation", "sweep_nu_out", "sweep_k", "sweep_T", "sweep_margin")
+FULL_STUDIES = (*DEFAULT_STUDIES, "accuracy_karate", "ablation_anticipation", "sweep_nu_out", "sweep_k", "sweep_T",
+                "sweep_margin")
 WARMUP = [sys.executable, "-m", "experiments.run", "scene=karate", "+point=viewdep", "scale=small", "frames=2",
           "output.rerun=false", "output.progress=false"]
 
@@ -75,7 +79,10 @@ WARMUP = [sys.executable, "-m", "experiments.run", "scene=karate", "+point=viewd
 # single-character scenes with table1's repeats and the crowd `--crowd-repeats` times (default 1),
 # its characters two at a time with one numba thread each (experiments.launch.share_cores), so that
 # the job stays within about 90 minutes on 2 cores at scale=small.
-SINGLE_SCENES = "karate,solo_dancer"
+SINGLE_SCENES = ("karate", "solo_dancer")
+# The accuracy study that finds each single scene's fixed mesh of adaptive's quality (its folder in
+# the job); a scene whose study did not run inherits the solo dancer's, and the log says so.
+ACCURACY_STUDY_OF = {"solo_dancer": "accuracy", "karate": "accuracy_karate"}
 CROWD_SCENE = "multiple_dancers"
 # Table 1's points in the main job: its fixed mesh (the baseline), then these (the preset's own).
 TABLE1_POINTS = ("adaptive", "viewdep", "viewdep_nofloor")
@@ -126,22 +133,26 @@ def equal_quality_point(out: Path, log=print) -> str:
     return point
 
 
-def equal_quality_baseline(out: Path, log=print) -> list[str]:
-    """Table 1's non-adaptive row as overrides: the fixed mesh of adaptive's quality that the
-    accuracy study in out/accuracy found by its millimetre windows (figures/equal_quality.csv: the
-    coarsest not worse than adaptive by more than the margin, its factor interpolated where the
-    sweep brackets it; conf/point/fixed_factor at that factor), else :func:`equal_quality_point`."""
-    table = out / "accuracy" / "figures" / "equal_quality.csv"
-    rows = pd.read_csv(table) if table.is_file() else pd.DataFrame()
-    rows = rows[rows["scene"] == "solo_dancer"] if "scene" in rows.columns else rows.iloc[:0]
-    if len(rows):
-        r = rows.iloc[0]
-        factor = float(r["interpolated_factor"])
-        if math.isfinite(factor) and factor > 0:
-            log(f"table1: the non-adaptive row is the fixed mesh of adaptive's quality on solo_dancer by its "
-                f"millimetre windows: x{factor:.3g} ({'interpolated beside' if r['bracketed'] else 'as'} "
-                f"{r['variant']}); karate and the crowd inherit it")
-            return ["baseline=fixed_factor", f"baseline_factor={factor:.3g}"]
+def equal_quality_baseline(out: Path, log=print, scene: str = "solo_dancer") -> list[str]:
+    """Table 1's non-adaptive row of `scene` as overrides: the fixed mesh of adaptive's quality
+    that the scene's accuracy study (ACCURACY_STUDY_OF; the solo dancer's for a scene without one,
+    the crowd's) found by its millimetre windows (figures/equal_quality.csv: the coarsest not worse
+    than adaptive by more than the margin, its factor interpolated where the sweep brackets it;
+    conf/point/fixed_factor at that factor), else :func:`equal_quality_point`."""
+    own = ACCURACY_STUDY_OF.get(scene)
+    for study, of in ((own, scene), ("accuracy", "solo_dancer")) if own else (("accuracy", "solo_dancer"),):
+        table = out / study / "figures" / "equal_quality.csv"
+        rows = pd.read_csv(table) if table.is_file() else pd.DataFrame()
+        rows = rows[rows["scene"] == of] if "scene" in rows.columns else rows.iloc[:0]
+        if len(rows):
+            r = rows.iloc[0]
+            factor = float(r["interpolated_factor"])
+            if math.isfinite(factor) and factor > 0:
+                whose = "its own" if of == scene else f"{of}'s (inherited: {scene} has no accuracy study here)"
+                log(f"table1: {scene}'s non-adaptive row is the fixed mesh of adaptive's quality by {whose} "
+                    f"millimetre windows: x{factor:.3g} ({'interpolated beside' if r['bracketed'] else 'as'} "
+                    f"{r['variant']})")
+                return ["baseline=fixed_factor", f"baseline_factor={factor:.3g}"]
     return [f"baseline={equal_quality_point(out, log)}"]
 
 
@@ -154,15 +165,24 @@ def study_parts(study: str, args, out: Path | None = None) -> list[tuple[str, li
     if study != "table1":
         return [(study, [])]
     crowd_jobs = min(2, args.jobs_cores)
-    chosen = (equal_quality_baseline(out) if out is not None and "accuracy" in args.studies
-              else ["baseline=nonadaptive"])
-    baseline = chosen[0].split("=", 1)[1]
-    # quoted: the sweeper's own list (a bare comma would make the override itself a sweep)
-    points = f"points='{','.join((baseline, *TABLE1_POINTS))}'"
-    return [("table1", [f"hydra.sweeper.params.scene='{SINGLE_SCENES}'", f"repeats={args.repeats}",
-                        *chosen, points, f"output.stills_every={TABLE1_STILLS_EVERY}"]),
-            ("table1_crowd", [f"hydra.sweeper.params.scene='{CROWD_SCENE}'", f"repeats={args.crowd_repeats}",
-                              f"crowd_jobs={crowd_jobs}", *chosen, points])]
+    measured = out is not None and any(ACCURACY_STUDY_OF[s] in args.studies for s in SINGLE_SCENES)
+
+    def chosen(scene):
+        return equal_quality_baseline(out, scene=scene) if measured else ["baseline=nonadaptive"]
+
+    def points(choice):  # quoted: the sweeper's own list (a bare comma would make the override itself a sweep)
+        return f"points='{','.join((choice[0].split('=', 1)[1], *TABLE1_POINTS))}'"
+
+    parts = []
+    for scene in SINGLE_SCENES:  # each scene with its own fixed mesh of adaptive's quality
+        choice = chosen(scene)
+        parts.append(("table1" if scene == "solo_dancer" else f"table1_{scene}",
+                      [f"hydra.sweeper.params.scene={scene}", f"repeats={args.repeats}", *choice, points(choice),
+                       f"output.stills_every={TABLE1_STILLS_EVERY}"]))
+    choice = chosen(CROWD_SCENE)  # the dancer's: the crowd wears the same skirt
+    parts.append(("table1_crowd", [f"hydra.sweeper.params.scene='{CROWD_SCENE}'", f"repeats={args.crowd_repeats}",
+                                   f"crowd_jobs={crowd_jobs}", *choice, points(choice)]))
+    return parts
 
 
 def accuracy_points(full: bool) -> list[str]:

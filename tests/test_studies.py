@@ -339,8 +339,9 @@ def test_table1_baseline_is_the_accuracy_study_s_equal_quality_mesh(tmp_path):
     args = paper.parse_args(["--out", str(tmp_path)])
     assert args.studies[:2] == ["accuracy", "table1"]
     full = paper.parse_args(["--full"]).studies  # the default job and the sweeps and anticipation it leaves out
-    assert full[:4] == args.studies and {"sweep_nu_out", "sweep_k", "sweep_T", "sweep_margin",
-                                         "ablation_anticipation"} <= set(full)
+    assert [s for s in full if s in args.studies] == args.studies and {
+        "accuracy_karate", "sweep_nu_out", "sweep_k", "sweep_T", "sweep_margin", "ablation_anticipation"} <= set(full)
+    assert full.index("accuracy_karate") < full.index("table1")  # karate's fixed mesh found before Table 1
     with pytest.raises(SystemExit):
         paper.parse_args(["--full", "--studies", "table1"])
     logs = []
@@ -356,7 +357,7 @@ def test_table1_baseline_is_the_accuracy_study_s_equal_quality_mesh(tmp_path):
     table.to_csv(fig / "pareto.csv", index=False)
     assert paper.equal_quality_point(tmp_path, logs.append) == "resolution/1.4" and "fixed x1.4" in logs[-1]
     parts = dict(paper.study_parts("table1", args, tmp_path))
-    for folder in ("table1", "table1_crowd"):
+    for folder in ("table1", "table1_karate", "table1_crowd"):
         assert "baseline=resolution/1.4" in parts[folder]
         cfg = compose_config("+experiment=table1", *[a for a in parts[folder] if a.startswith(("baseline", "points"))],
                              "+point=resolution/1.4")
@@ -406,6 +407,31 @@ def test_table1_baseline_at_the_interpolated_factor_of_the_millimetre_windows(tm
     sim, _ = build_simulation(cfg)
     base, _ = build_simulation(compose_config("scene=solo_dancer", "mode=nonadaptive"))
     assert sim.mesh.n_faces > base.mesh.n_faces  # round(31 x 1.23) = 38 segments against 31
+
+
+def test_karate_takes_its_own_fixed_mesh_of_adaptives_quality_when_its_accuracy_study_ran(tmp_path):
+    """With accuracy_karate's equal_quality.csv, Table 1's karate row is karate's own fixed mesh; the
+    solo dancer keeps its own and the crowd inherits the dancer's, and the log says so."""
+    from experiments import paper
+
+    for study, scene, factor in (("accuracy", "solo_dancer", 1.23), ("accuracy_karate", "karate", 0.91)):
+        fig = tmp_path / study / "figures"
+        fig.mkdir(parents=True)
+        pd.DataFrame({"scene": [scene], "scale": ["small"], "run": ["x"], "variant": ["fixed x1"],
+                      "resolution_factor": [1.0], "faces_mean": [1.0], "interpolated_factor": [factor],
+                      "bracketed": [True]}).to_csv(fig / "equal_quality.csv", index=False)
+    logs = []
+    assert paper.equal_quality_baseline(tmp_path, logs.append, scene="karate")[1] == "baseline_factor=0.91"
+    assert "its own" in logs[-1]
+    assert paper.equal_quality_baseline(tmp_path, logs.append, scene="multiple_dancers")[1] == "baseline_factor=1.23"
+    assert "inherited" in logs[-1]
+    parts = dict(paper.study_parts("table1", paper.parse_args(["--full", "--out", str(tmp_path)]), tmp_path))
+    assert "baseline_factor=0.91" in parts["table1_karate"] and "hydra.sweeper.params.scene=karate" in parts[
+        "table1_karate"]
+    assert "baseline_factor=1.23" in parts["table1"] and "baseline_factor=1.23" in parts["table1_crowd"]
+    (tmp_path / "accuracy_karate" / "figures" / "equal_quality.csv").unlink()  # karate's study did not run
+    assert paper.equal_quality_baseline(tmp_path, logs.append, scene="karate")[1] == "baseline_factor=1.23"
+    assert "inherited" in logs[-1]
 
 
 def test_a_preset_runs_as_a_multirun_and_its_callback_aggregates(tmp_path):
