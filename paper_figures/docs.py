@@ -38,10 +38,10 @@ PAGES = {
     "table1": ("Table 1 and Fig. 8", "The paper's Table 1 (faces, vertices and simulation time per frame of the "
                "three modes on its three scenes) with the paper's own numbers beside ours, and Fig. 8 (time per "
                "frame and cumulative time, the paper's per-frame records beside ours where they were given).",
-               [("table1", ["fig8_*"])]),
+               [("table1", ["fig8_*"]), ("phases", [])]),
     "pareto": ("What accuracy costs in time", "Error against a fine reference beside simulation time per frame "
                "for every run of the accuracy study, and which runs are on the Pareto front.",
-               [("pareto", ["pareto"]), ("equivalence", []), ("equal_quality", [])]),
+               [("pareto", ["pareto"]), ("equivalence", []), ("equal_quality", []), ("pareto_flip", ["pareto_flip"])]),
     "ablations": ("Ablations", "Buckling compensation on the drape test and on the standing dancer, and the "
                   "anticipation of camera cuts (the paper's Figs. 6 and 3).",
                   [("ablation_drape", ["ablation_drape"]), ("ablation_buckling_dancer", ["ablation_buckling_dancer"]),
@@ -51,6 +51,9 @@ PAGES = {
                "view-dependent sizing (nu_out, k, T, the margin).", [("sweeps", ["sweep_*"])]),
     "crowd_scaling": ("Crowd scaling", "The view-dependent speed-up against the size of the crowd.",
                       [("crowd_scaling", ["crowd_scaling"])]),
+    "cameras": ("Beyond the paper: several cameras, a live camera", "What a second camera costs in faces and "
+                "time and what each camera sees, and a camera whose future is not known against its prescribed "
+                "path and against no anticipation.", [("cameras", []), ("live_camera", ["live_camera"])]),
 }
 
 
