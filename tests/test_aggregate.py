@@ -166,6 +166,19 @@ def test_face_ratios_are_over_the_adaptive_mean_beside_the_papers(tmp_path):
     assert "2.50 | 2.42" in md and "View-dependent (viewdep_nofloor)" in md
 
 
+def test_table1s_fixed_mesh_of_adaptives_quality_is_compared_with_the_papers(tmp_path):
+    """Table 1's non-adaptive row is the fixed mesh of adaptive's quality (variant 'fixed x1.14'):
+    the side-by-side and the face ratios put it beside the paper's fixed mesh."""
+    write_run(tmp_path / "n", "solo_dancer", "nonadaptive", [300, 300], [1, 1], [1.0, 1.0], variant="fixed x1.14")
+    write_run(tmp_path / "a", "solo_dancer", "adaptive", [100, 140], [1, 1], [1.0, 1.0])
+    t = table1(load_runs([tmp_path]).runs)
+    sbs = tables.side_by_side(t).set_index("mode")
+    assert sbs.loc["nonadaptive", "variant"] == "fixed x1.14" and sbs.loc["nonadaptive", "faces_mean_paper"] == 43710
+    r = tables.face_ratios(t).set_index("mode")
+    assert r.loc["nonadaptive", "faces_ratio"] == 2.5
+    assert r.loc["nonadaptive", "faces_ratio_paper"] == pytest.approx(43710 / 18041, abs=EXACT_TOL)
+
+
 def test_a_row_whose_runs_differ_in_commit_or_frames_is_refused_and_named(tmp_path):
     old, new = {"git_commit": "b" * 40}, {"git_commit": "c" * 40}
     write_run(tmp_path / "a0", "toy", "adaptive", [4, 4], [3, 3], [1.0, 1.0], seed=0, manifest=old)
