@@ -375,7 +375,7 @@ def test_paper_figures_write_every_expected_file(tmp_path, capsys):
                 "ablation_buckling.md", "ablation_anticipation.png", "ablation_anticipation.pdf",
                 "ablation_anticipation.csv", "ablation_anticipation.md", "ablation_anticipation_seeds.csv",
                 "ablation_anticipation_seeds.md", "pareto.png", "pareto.pdf", "pareto.csv",
-                "pareto.md"}
+                "pareto.md", "phases.csv", "phases.md"}
     written = {p.name for p in out.iterdir()}
     assert written == expected, f"missing {expected - written}, unexpected {written - expected}"
     for name in expected - {"problems.txt"}:

@@ -127,7 +127,7 @@ def test_repeats_sweep_the_seeds_one_run_at_a_time(experiment):
     buckling ablations, 5 for the anticipation ablation, 1 for the others by default), and the
     local launcher runs one run at a time."""
     default = {"table1": 3, "ablation_anticipation": 5, "ablation_buckling": 3,
-               "ablation_buckling_dancer": 3}.get(experiment, 1)
+               "ablation_buckling_dancer": 3, "live_camera": 3}.get(experiment, 1)
     for extra, n in (((), default), (("repeats=5",), 5)):
         cfg = compose_config(f"+experiment={experiment}", *extra, return_hydra_config=True)
         assert cfg.repeats == n and cfg.hydra.sweeper.params.seed == f"range(0,{n})"
@@ -302,22 +302,25 @@ def test_main_job_warms_the_kernel_cache_before_any_study(tmp_path, monkeypatch)
     rc = paper.main(["--out", str(tmp_path), "--studies", "table1", "accuracy"])
     assert rc == 1
     assert calls[0][:3] == paper.WARMUP[:3] and calls[0][-1] == f"hydra.run.dir={tmp_path / 'warmup'}"
-    # the accuracy study first (whatever the order asked), then table1 in two parts: the single
-    # characters with 3 repeats, the crowd once, 2 characters at a time
+    # the accuracy study first (whatever the order asked), then table1 in three parts: each single
+    # character with 3 repeats (its own fixed mesh), the crowd once, 2 characters at a time
     assert "experiment=accuracy" in calls[1] and "hydra.launcher.n_jobs=1" in calls[1]
-    assert "experiment=table1" in calls[2] and "hydra.sweeper.params.scene='karate,solo_dancer'" in calls[2]
-    assert "repeats=3" in calls[2] and f"hydra.sweep.dir={tmp_path / 'table1'}" in calls[2]
-    assert f"output.stills_every={paper.TABLE1_STILLS_EVERY}" in calls[2]  # the report's stills of each mode
-    assert "experiment=table1" in calls[3] and "hydra.sweeper.params.scene='multiple_dancers'" in calls[3]
-    assert "repeats=1" in calls[3] and f"hydra.sweep.dir={tmp_path / 'table1_crowd'}" in calls[3]
+    assert "experiment=table1" in calls[2] and "hydra.sweeper.params.scene=karate" in calls[2]
+    assert "repeats=3" in calls[2] and f"hydra.sweep.dir={tmp_path / 'table1_karate'}" in calls[2]
+    assert "experiment=table1" in calls[3] and "hydra.sweeper.params.scene=solo_dancer" in calls[3]
+    assert "repeats=3" in calls[3] and f"hydra.sweep.dir={tmp_path / 'table1'}" in calls[3]
+    assert f"output.stills_every={paper.TABLE1_STILLS_EVERY}" in calls[3]  # the report's stills of each mode
+    assert "experiment=table1" in calls[4] and "hydra.sweeper.params.scene='multiple_dancers'" in calls[4]
+    assert "repeats=1" in calls[4] and f"hydra.sweep.dir={tmp_path / 'table1_crowd'}" in calls[4]
     # the accuracy study failed: no equal-quality mesh, the preset's fixed mesh
-    assert "baseline=nonadaptive" in calls[2] and "baseline=nonadaptive" in calls[3]
+    assert all("baseline=nonadaptive" in calls[k] for k in (2, 3, 4))
     points = "points='nonadaptive,adaptive,viewdep,viewdep_nofloor'"
-    assert points in calls[2] and points in calls[3]
-    assert calls[4][2] == "paper_figures"
-    for part in (calls[2], calls[3]):  # each part composes, and sweeps what it says
+    assert all(points in calls[k] for k in (2, 3, 4))
+    assert calls[5][2] == "paper_figures"
+    for part in (calls[2], calls[3], calls[4]):  # each part composes, and sweeps what it says
         cfg = compose_config(*[a for a in part[3:] if not a.startswith("hydra.sweep.dir")], return_hydra_config=True)
-        assert cfg.study == "table1" and cfg.hydra.sweeper.params.scene in ("karate,solo_dancer", "multiple_dancers")
+        assert cfg.study == "table1" and cfg.hydra.sweeper.params.scene in ("karate", "solo_dancer",
+                                                                              "multiple_dancers")
         assert cfg.points == "nonadaptive,adaptive,viewdep,viewdep_nofloor"
     overrides = [a for a in paper.WARMUP[3:]]
     cfg = compose_config(*overrides)
@@ -446,12 +449,13 @@ def test_a_preset_runs_as_a_multirun_and_its_callback_aggregates(tmp_path):
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     runs = _completed(sweep)
     cfgs = [yaml.safe_load((r / "config.yaml").read_text()) for r in runs]
-    assert len(runs) == 6 and {c["study"] for c in cfgs} == {"ablation_anticipation"}
+    assert len(runs) == 7 and {c["study"] for c in cfgs} == {"ablation_anticipation"}
     assert {c["scene"]["name"] for c in cfgs} == {"solo_dancer"}
     assert sum(bool(c["reference"]) for c in cfgs) == 1
-    assert sorted((c["mode"]["view"]["anticipation"], c["mode"]["view"]["anticipation_frames"])
-                  for c in cfgs if not c["reference"]) == [(False, 5), (True, 0), (True, 2), (True, 5), (True, 10)]
-    assert sum((r / "accuracy.json").exists() for r in runs) == 5
+    assert sorted((c["mode"]["view"]["anticipation"], c["mode"]["view"]["anticipation_frames"],
+                   c["mode"]["view"]["lookahead"]) for c in cfgs if not c["reference"]) == [
+        (False, 5, True), (True, 0, True), (True, 2, True), (True, 5, False), (True, 5, True), (True, 10, True)]
+    assert sum((r / "accuracy.json").exists() for r in runs) == 6
     # the re-synchronised error: frame 0's window only (every = 1000; the cuts come later)
     assert all(json.loads((r / "sync.json").read_text())["windows"] == 1 for r in runs)
     assert any((sweep / "figures").iterdir())

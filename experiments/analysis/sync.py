@@ -84,7 +84,8 @@ EVERY, HORIZON, BEFORE_CUT = 10, 8, 5  # frames: the issue's defaults
 RESTARTS = ("reference_mesh", "own_mesh")  # on which mesh a remeshing mode restarts (module docstring)
 RESOLUTION_SCALE = 0.5  # rendered image / camera image: samples every 2 camera pixels (distances stay in camera px)
 COLUMNS = ("member", "sync_frame", "frame", "shot", "before_cut", *ERROR_KEYS, "sync_samples",
-           "sync_error_h0_px", "sync_error_h0_mm", "faces_mean", "sim_s", "diverged")
+           "sync_error_h0_px", "sync_error_h0_mm", "faces_mean", "sim_s", "diverged",
+           "flip")  # FLIP at the window's end (perceptual=True; NaN otherwise)
 # the summaries' measures: the camera's pixels, millimetres on the cloth, pixels of a 1080p image
 MEASURES = ("sync_error_px", "sync_error_mm", "sync_error_px1080")
 FRAME_COLUMNS = ("member", "sync_frame", "h", "frame", *MEASURES, "faces", "sim_s")  # sync_frames.parquet (--per-frame)
@@ -258,8 +259,7 @@ def evaluate_run(run_dir, ref_dir, every: int = EVERY, horizon: int = HORIZON, b
                 log(f"  {run_dir.name}: {f'member {k}, ' if len(members) > 1 else ''}window {s}..{s + horizon}"
                     f"{' (before a cut)' if cut else ''}: {row['sync_error_px']:.2f} px "
                     f"({row['sync_error_mm']:.2f} mm), {row['faces_mean']:.0f} faces, {time.perf_counter() - t0:.1f} s")
-    table = pd.DataFrame(rows, columns=list(COLUMNS) + ["flip"]
-                         + [c for name, _ in view_paths for c in view_columns(name)])
+    table = pd.DataFrame(rows, columns=list(COLUMNS) + [c for name, _ in view_paths for c in view_columns(name)])
     if per_frame:
         table.attrs["per_frame"] = pd.DataFrame(frame_rows, columns=list(FRAME_COLUMNS))
     return table
