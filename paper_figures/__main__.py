@@ -33,6 +33,9 @@ def _docs_args(ap) -> None:
                     help="the README whose headline-table block --docs rewrites (default: the repository's)")
     ap.add_argument("--report", type=Path, default=None, metavar="DIR",
                     help="where the study report goes (index.html and its images; default: ROOT/report)")
+    ap.add_argument("--pages", nargs="+", default=None, metavar="PAGE", choices=list(docs.PAGES),
+                    help=f"with --docs: only these pages (of {', '.join(docs.PAGES)}); default every page "
+                         "whose tables exist")
     ap.add_argument("--command", default=None,
                     help="the command that ran the runs, for the pages' stamp (default: ROOT/command.txt, "
                          "which python -m experiments.paper writes)")
@@ -72,7 +75,7 @@ def main(argv=None) -> int:
     if args.docs is not None:
         page_command = "python -m paper_figures " + " ".join(sys.argv[1:] if argv is None else argv)
         files += docs.write_pages(args.out, runset.runs, args.docs, command=command, page_command=page_command,
-                                  problems=runset.problems)
+                                  problems=runset.problems, pages=args.pages)
         if docs.update_readme(args.readme, args.out, runset.runs, args.docs, command, page_command):
             files.append(args.readme)
     print(f"\nfiles written ({len(files)}):")

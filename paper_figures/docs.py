@@ -114,15 +114,23 @@ def runs_summary(runs: pd.DataFrame, problems=()) -> str:
 
 
 def write_pages(figures_dir, runs: pd.DataFrame, docs_dir, command: str | None = None,
-                page_command: str = "python -m paper_figures ROOT --docs DIR", log=print, problems=()) -> list[Path]:
-    """Write every page of PAGES whose tables or figures exist in figures_dir into docs_dir (images
-    into docs_dir/IMAGE_DIR), and docs_dir/index.md; remove the generated files of an earlier run
-    that this one does not write. Returns the files written."""
+                page_command: str = "python -m paper_figures ROOT --docs DIR", log=print, problems=(),
+                pages=None) -> list[Path]:
+    """Write every page of PAGES (or of `pages`, names of PAGES: a study that made some pages'
+    tables only by falling back on every run, as Table 1 does, is not published as them) whose
+    tables or figures exist in figures_dir into docs_dir (images into docs_dir/IMAGE_DIR), and
+    docs_dir/index.md; remove the generated files of an earlier run that this one does not write.
+    Returns the files written; ValueError names a page that PAGES does not have."""
+    unknown = sorted(set(pages or ()) - set(PAGES))
+    if unknown:
+        raise ValueError(f"docs: no page {unknown}; pages: {', '.join(PAGES)}")
     figures_dir, docs_dir = Path(figures_dir), Path(docs_dir)
     (docs_dir / IMAGE_DIR).mkdir(parents=True, exist_ok=True)
     head = stamp(runs, command, page_command)
     written, index = [], []
     for stem, (title, what, parts) in PAGES.items():
+        if pages is not None and stem not in pages:
+            continue
         body = []
         for table, patterns in parts:
             src = figures_dir / f"{table}.md" if table else None

@@ -124,3 +124,21 @@ def test_the_cameras_table_gives_ratios_to_adaptive_and_every_view():
     assert two["faces_vs_adaptive"] == 3000.0 / 2400.0 and two["time_vs_adaptive"] == pytest.approx(0.6 / 0.48)
     assert two["sync_error_px_mean"] == 10.0 and two["sync_error_px_view_side_wide_mean"] == 5.0  # the first seed's
     assert table.loc["adaptive", "time_vs_adaptive"] == 1.0
+
+
+def test_docs_pages_can_be_limited_to_the_pages_a_study_made(tmp_path):
+    """paper_figures --docs --pages cameras: the cameras studies' folder also yields a 'Table 1' of
+    every run (its fallback), which is not published as one."""
+    import pandas as pd
+
+    from paper_figures import docs
+
+    fig = tmp_path / "figures"
+    fig.mkdir()
+    for stem in ("table1", "cameras"):
+        (fig / f"{stem}.md").write_text(f"# {stem}\n\n| a |\n| --- |\n| 1 |\n")
+    written = docs.write_pages(fig, pd.DataFrame(), tmp_path / "docs", pages=["cameras"])
+    assert sorted(p.name for p in written) == ["cameras.md", "index.md"]
+    assert "table1.md" not in (tmp_path / "docs" / "index.md").read_text()
+    with pytest.raises(ValueError, match="no page"):
+        docs.write_pages(fig, pd.DataFrame(), tmp_path / "docs", pages=["nope"])
