@@ -14,7 +14,7 @@ and, at the top level, `image: {width, height, near, far}` shared by every shot.
 
 A camera or keyframe may carry `fit: stage` or `fit: dancer` (ignored by `path_from_config`):
 :func:`fit_shots` moves those to a stage of another size (a crowd of another number of dancers,
-experiments.build.stage_camera_config says by how much).
+experiments.camerasetup.stage_camera_config says by how much).
 """
 
 from __future__ import annotations
