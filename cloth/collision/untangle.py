@@ -183,18 +183,24 @@ def find_intersections(face_nodes: np.ndarray, x: np.ndarray, node_g: np.ndarray
     return pairs[crosses], length[crosses], depth[crosses]
 
 
+def with_obstacles(face_nodes: np.ndarray, x: np.ndarray, obstacles):
+    """(faces, positions, obstacle face count): the cloth's faces and nodes with the triangles of
+    `obstacles` ([(positions, faces), ...]) appended after them, renumbered onto the appended nodes."""
+    parts_f, parts_x, n = [face_nodes], [x], x.shape[0]
+    for ox, of in obstacles:
+        parts_f.append(np.asarray(of, dtype=face_nodes.dtype) + n)
+        parts_x.append(np.asarray(ox, dtype=np.float64))
+        n += parts_x[-1].shape[0]
+    return np.vstack(parts_f), np.vstack(parts_x), sum(f.shape[0] for f in parts_f[1:])
+
+
 def obstacle_crossings(face_nodes: np.ndarray, x: np.ndarray, obstacles, faces: np.ndarray | None = None) -> np.ndarray:
     """(K, 2) pairs (cloth face, obstacle triangle) that cross: `faces` of the cloth (all if None)
     against the triangles of `obstacles` ([(positions, faces), ...], numbered in that order)."""
     faces = np.arange(face_nodes.shape[0]) if faces is None else np.asarray(faces, dtype=np.int64)
     if not len(obstacles) or faces.size == 0:
         return np.empty((0, 2), dtype=np.int64)
-    parts_x, parts_f, n = [x], [face_nodes[faces]], x.shape[0]
-    for ox, of in obstacles:
-        parts_f.append(np.asarray(of, dtype=np.int64) + n)
-        parts_x.append(np.asarray(ox, dtype=np.float64))
-        n += parts_x[-1].shape[0]
-    fn, xa = np.vstack(parts_f).astype(np.int64), np.vstack(parts_x)
+    fn, xa, _ = with_obstacles(np.asarray(face_nodes[faces], dtype=np.int64), x, obstacles)
     lo, hi = face_boxes(fn, xa)
     F = faces.size
     cand = cross_overlaps(lo[:F], hi[:F], lo[F:], hi[F:]) + np.array([0, F])
@@ -246,15 +252,11 @@ def untangle(face_nodes: np.ndarray, x: np.ndarray, node_m: np.ndarray, pinned: 
     if max_iterations < 0:
         raise ValueError(f"max_iterations must be >= 0, got {max_iterations}")
     if len(obstacles):  # append the obstacles as pinned nodes and fixed faces, untangle, copy the cloth back
-        n, parts_f, parts_x = x.shape[0], [face_nodes], [x]
-        for ox, of in obstacles:
-            parts_f.append(np.asarray(of, dtype=face_nodes.dtype) + sum(p.shape[0] for p in parts_x))
-            parts_x.append(np.asarray(ox, dtype=np.float64))
-        x_all = np.vstack(parts_x)
+        n = x.shape[0]
+        faces_all, x_all, n_fixed = with_obstacles(face_nodes, x, obstacles)
         fixed = np.ones(x_all.shape[0] - n, dtype=bool)
-        stats = untangle(np.vstack(parts_f), x_all, np.concatenate([node_m, fixed.astype(float)]),
-                         np.concatenate([pinned, fixed]), thickness, max_iterations,
-                         n_fixed_faces=sum(f.shape[0] for f in parts_f[1:]))
+        stats = untangle(faces_all, x_all, np.concatenate([node_m, fixed.astype(float)]),
+                         np.concatenate([pinned, fixed]), thickness, max_iterations, n_fixed_faces=n_fixed)
         x[:] = x_all[:n]
         return stats
     stats = dict(UNTANGLE_RECORD)
