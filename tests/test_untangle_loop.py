@@ -166,3 +166,48 @@ def test_a_remesh_move_that_carries_a_face_into_a_mesh_obstacle_is_put_back():
     assert np.array_equal(x[top], x_from[top]) and x[kept, 2] > x_from[kept, 2]
     assert len(obstacle_crossings(sim.mesh.face_nodes, x, [(ox, of)])) == 0
     assert keep_obstacles_uncrossed(sim, x_from) == 0  # nothing crosses: nothing put back
+
+
+# Two sheets 0.6 thicknesses apart on a floor FLOOR_BELOW thicknesses under the lower one; the
+# middle of the upper sheet is moved BUMP_DOWN thicknesses down: through the lower sheet, not to
+# the floor. The self-collision response alone then carries the lower sheet 1.17 thicknesses down
+# (the two sheets' impact zone moves together), through the floor (measured: 12 crossings).
+FLOOR_BELOW_THICKNESSES = 1.0
+BUMP_DOWN_THICKNESSES = 1.4
+
+
+def test_the_remesh_motion_response_does_not_carry_cloth_into_a_mesh_obstacle():
+    """collision_free_motion with a triangle-mesh obstacle takes it into the same pass, standing still:
+    the upper sheet pushed down through the lower one ends above it, and the response's own
+    moves (the impact zone of both sheets) do not carry the lower sheet through the floor below it,
+    which the self-collision pass alone does (ARCSim's dress-blue, seed 1, frame 337)."""
+    from types import SimpleNamespace
+
+    from helpers import two_sheets
+
+    from cloth.collision.obstacles import ObstacleSet
+    from cloth.collision.selfcollision import SelfCollisionParams, resolve_self_collisions
+    from cloth.remeshing.adaptive import collision_free_motion
+    thickness = 0.005
+    mesh, n_lower = two_sheets(gap=0.6 * thickness)
+    z = -FLOOR_BELOW_THICKNESSES * thickness
+    floor = TriangleMeshObstacle(np.array([[-1, -1, z], [2, -1, z], [2, 2, z], [-1, 2, z]], dtype=float),
+                                 np.array([[0, 1, 2], [0, 2, 3]]))
+    x_from = mesh.node_x.copy()
+    upper = np.arange(n_lower, mesh.n_nodes)
+    bump = upper[np.linalg.norm(x_from[upper, :2] - x_from[upper, :2].mean(axis=0), axis=1) < 0.07]
+    mesh.node_x[bump, 2] -= BUMP_DOWN_THICKNESSES * thickness  # through the lower sheet, not to the floor
+    x_moved = mesh.node_x.copy()
+    triangles = mesh_obstacle_triangles([floor])
+    assert len(obstacle_crossings(mesh.face_nodes, x_moved, triangles)) == 0
+    params = SelfCollisionParams(thickness)
+    alone = x_moved.copy()  # the self-collision pass alone: what the remesh did before
+    resolve_self_collisions(mesh.face_nodes, mesh.face_edges, mesh.edge_nodes, x_from, alone, mesh.node_m,
+                            mesh.node_pinned, params)
+    assert len(obstacle_crossings(mesh.face_nodes, alone, triangles)) > 0
+    sim = SimpleNamespace(mesh=mesh, self_collision=params, mesh_collision=params, mesh_obstacles=[floor],
+                          obstacle_set=ObstacleSet([floor]), time=0.0, node_passing=np.zeros(mesh.n_nodes, dtype=bool))
+    collision_free_motion(sim, x_from)
+    assert len(obstacle_crossings(mesh.face_nodes, mesh.node_x, triangles)) == 0
+    assert len(find_intersections(mesh.face_nodes, mesh.node_x)[0]) == 0
+    assert mesh.node_x[:, 2].min() > z
