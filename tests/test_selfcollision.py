@@ -48,12 +48,42 @@ def test_bvh_pairs_equal_brute_force():
         lo, hi = c - s, c + s
         ov = np.all((lo[:, None] <= hi[None]) & (lo[None] <= hi[:, None]), axis=2)
         i, j = np.nonzero(np.triu(ov, 1))
-        assert sorted(map(tuple, self_overlaps(lo, hi))) == sorted(zip(i, j))
+        pairs = self_overlaps(lo, hi)
+        assert list(map(tuple, pairs)) == sorted(zip(i, j))  # sorted, each pair once, i < j
+        unsorted = self_overlaps(lo, hi, sort=False)  # the search's own order: the same pairs
+        assert len(unsorted) == len(pairs) and sorted(map(tuple, unsorted)) == list(map(tuple, pairs))
         c2 = rng.random((35, 3))
         lo2, hi2 = c2 - 0.05, c2 + 0.05
         ov2 = np.all((lo[:, None] <= hi2[None]) & (lo2[None] <= hi[:, None]), axis=2)
         i, j = np.nonzero(ov2)
         assert sorted(map(tuple, cross_overlaps(lo, hi, lo2, hi2))) == sorted(zip(i, j))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_reused_broad_phase_gives_the_pairs_of_a_fresh_one(monkeypatch, seed):
+    """resolve_self_collisions finds the face pairs once and reuses them while no node has moved
+    more than the thickness less the query's pad: the result (positions and record) is bitwise the
+    one of a fresh broad phase at every query, on a step that needs proximity, CCD passes and
+    impact zones (the upper of two sheets pushed down through the lower one, with jitter)."""
+    import cloth.collision.selfcollision as sc
+    mesh, n_lower = two_sheets(n=10, gap=0.6 * THICKNESS)
+    rng = np.random.default_rng(seed)
+    x0 = mesh.node_x.copy()
+    x1 = x0 + rng.normal(scale=0.3 * THICKNESS, size=x0.shape)
+    upper = np.arange(n_lower, mesh.n_nodes)
+    bump = upper[np.linalg.norm(x0[upper, :2] - x0[upper, :2].mean(axis=0), axis=1) < 0.08]
+    x1[bump, 2] -= 0.02  # through the lower sheet
+    params = SelfCollisionParams(THICKNESS)
+    runs = []
+    for reuse in (True, False):
+        monkeypatch.setattr(sc, "REUSE_BROAD_PHASE", reuse)
+        x = x1.copy()
+        stats = resolve_self_collisions(mesh.face_nodes, mesh.face_edges, mesh.edge_nodes, x0, x, mesh.node_m,
+                                        mesh.node_pinned, params)
+        runs.append((x, stats))
+    assert runs[0][1]["self_proximity"] > 0 and runs[0][1]["self_ccd_hits"] > 0
+    assert np.array_equal(runs[0][0], runs[1][0])
+    assert runs[0][1] == runs[1][1]
 
 
 def test_bvh_rejects_bad_boxes():

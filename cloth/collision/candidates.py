@@ -20,35 +20,18 @@ from numba import njit
 
 from cloth.collision.bvh import cross_overlaps, self_overlaps
 
-
-@njit(cache=True)
-def _kept(i, a, b, c, inv_m, first_fixed, skip):
-    """Whether the pair of nodes i, a, b, c is worth testing: some node can move, and, for a
-    pair with an obstacle node (index >= first_fixed), no node is flagged in `skip` (cloth
-    nodes found inside an obstacle at the step's start: the node contact alone handles them)."""
-    if inv_m[i] == 0.0 and inv_m[a] == 0.0 and inv_m[b] == 0.0 and inv_m[c] == 0.0:
-        return False
-    if i >= first_fixed or a >= first_fixed or b >= first_fixed or c >= first_fixed:
-        if skip[i] or skip[a] or skip[b] or skip[c]:
-            return False
-    return True
-
-
-@njit(cache=True, inline="always")
-def _apart(alo, ahi, a, blo, bhi, b, pad):
-    """Box a of (alo, ahi) and box b of (blo, bhi) are farther apart than pad along some axis."""
-    for d in range(3):
-        if alo[a, d] > bhi[b, d] + pad or blo[b, d] > ahi[a, d] + pad:
-            return True
-    return False
+# The kernel's tests are written out, not calls of helpers: a call of a numba function with
+# array arguments per pair (reference counts of each array) cost more than the tests themselves,
+# and numba's own inlining (inline="always") as much.
 
 
 @njit(cache=True)
 def _candidates(face_pairs, face_nodes, face_edges, edge_nodes, n_faces, n_edges, node_lo, node_hi,
                 face_lo, face_hi, edge_lo, edge_hi, node_owner, edge_owner, pad, inv_m, first_fixed, skip):
     """Vertex-face keys (node * F + face) and edge-edge keys (e_lo * E + e_hi) of the face
-    pairs, skipping pairs that share a node, pairs `_kept` rejects and pairs whose own swept
-    boxes are farther apart than pad (node, face and edge boxes over the step, unpadded).
+    pairs, skipping pairs that share a node and pairs whose own swept
+    boxes are farther apart than pad (node, face and edge boxes over the step, unpadded), pairs
+    none of whose nodes can move, and pairs of an obstacle node with a node flagged in `skip`.
 
     Each node and each edge is taken from one face only, its owner (node_owner, edge_owner):
     its box lies in its owner's, so a pair whose boxes are within pad comes from the pair of
@@ -66,11 +49,21 @@ def _candidates(face_pairs, face_nodes, face_edges, edge_nodes, n_faces, n_edges
                 i = face_nodes[f, a]
                 if node_owner[i] != f:
                     continue
-                if i == face_nodes[g, 0] or i == face_nodes[g, 1] or i == face_nodes[g, 2]:
+                a0, a1, a2 = face_nodes[g, 0], face_nodes[g, 1], face_nodes[g, 2]
+                if i == a0 or i == a1 or i == a2:
                     continue
-                if not _kept(i, face_nodes[g, 0], face_nodes[g, 1], face_nodes[g, 2], inv_m, first_fixed, skip):
+                # some node can move, and a pair with an obstacle node (index >= first_fixed) has no
+                # node flagged in `skip` (cloth nodes inside an obstacle at the step's start: the
+                # node contact alone handles them)
+                if inv_m[i] == 0.0 and inv_m[a0] == 0.0 and inv_m[a1] == 0.0 and inv_m[a2] == 0.0:
                     continue
-                if _apart(node_lo, node_hi, i, face_lo, face_hi, g, pad):
+                if (i >= first_fixed or a0 >= first_fixed or a1 >= first_fixed or a2 >= first_fixed) and \
+                        (skip[i] or skip[a0] or skip[a1] or skip[a2]):
+                    continue
+                # the node's and the face's own boxes within pad
+                if (node_lo[i, 0] > face_hi[g, 0] + pad or face_lo[g, 0] > node_hi[i, 0] + pad
+                        or node_lo[i, 1] > face_hi[g, 1] + pad or face_lo[g, 1] > node_hi[i, 1] + pad
+                        or node_lo[i, 2] > face_hi[g, 2] + pad or face_lo[g, 2] > node_hi[i, 2] + pad):
                     continue
                 vf[nv] = i * n_faces + g
                 nv += 1
@@ -87,9 +80,14 @@ def _candidates(face_pairs, face_nodes, face_edges, edge_nodes, n_faces, n_edges
                 P2, Q2 = edge_nodes[e2, 0], edge_nodes[e2, 1]
                 if p == P2 or p == Q2 or q == P2 or q == Q2:
                     continue
-                if not _kept(p, q, P2, Q2, inv_m, first_fixed, skip):
+                if inv_m[p] == 0.0 and inv_m[q] == 0.0 and inv_m[P2] == 0.0 and inv_m[Q2] == 0.0:
                     continue
-                if _apart(edge_lo, edge_hi, e1, edge_lo, edge_hi, e2, pad):
+                if (p >= first_fixed or q >= first_fixed or P2 >= first_fixed or Q2 >= first_fixed) and \
+                        (skip[p] or skip[q] or skip[P2] or skip[Q2]):
+                    continue
+                if (edge_lo[e1, 0] > edge_hi[e2, 0] + pad or edge_lo[e2, 0] > edge_hi[e1, 0] + pad
+                        or edge_lo[e1, 1] > edge_hi[e2, 1] + pad or edge_lo[e2, 1] > edge_hi[e1, 1] + pad
+                        or edge_lo[e1, 2] > edge_hi[e2, 2] + pad or edge_lo[e2, 2] > edge_hi[e1, 2] + pad):
                     continue
                 ee[ne] = min(e1, e2) * n_edges + max(e1, e2)
                 ne += 1
@@ -147,7 +145,7 @@ def overlapping_face_pairs(face_lo, face_hi, pad, n_fixed_faces=0, self_pairs=Tr
     within the cloth if `self_pairs`), never two obstacle faces."""
     lo, hi = face_lo - pad, face_hi + pad
     if not n_fixed_faces:
-        return self_overlaps(lo, hi)
+        return self_overlaps(lo, hi, sort=False)  # the candidates are sorted: any order
     Fc = lo.shape[0] - int(n_fixed_faces)
     # cloth faces whose boxes meet the obstacles' overall box: the others cannot touch them
     olo, ohi = lo[Fc:].min(axis=0), hi[Fc:].max(axis=0)
@@ -155,7 +153,7 @@ def overlapping_face_pairs(face_lo, face_hi, pad, n_fixed_faces=0, self_pairs=Tr
     cross = cross_overlaps(lo[near], hi[near], lo[Fc:], hi[Fc:])
     parts = [np.column_stack([near[cross[:, 0]], cross[:, 1] + Fc])]
     if self_pairs:
-        parts.insert(0, self_overlaps(lo[:Fc], hi[:Fc]))
+        parts.insert(0, self_overlaps(lo[:Fc], hi[:Fc], sort=False))
     return np.ascontiguousarray(np.vstack(parts))
 
 

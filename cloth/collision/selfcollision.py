@@ -58,7 +58,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cloth.collision.candidates import overlapping_face_pairs, owner_faces, primitive_pairs, swept_boxes
+from cloth.collision.candidates import (
+    overlapping_face_pairs,
+    owner_faces,
+    primitive_pairs,
+    swept_boxes,
+)
 from cloth.collision.impactzones import (
     PROJECTION_SWEEPS,
     PROJECTION_TOLERANCE,
@@ -77,6 +82,10 @@ CCD_ETA_FRACTION = 1e-3
 # correction does not start new collisions (the proximity stage of the next step restores the
 # full thickness).
 CCD_SEPARATION_FRACTION = 0.1
+# The pass reuses its broad phase's face pairs while they still hold every query's (see `pairs` in
+# resolve_self_collisions); False finds them afresh at every query (the same result, slower: a test
+# compares the two).
+REUSE_BROAD_PHASE = True
 
 
 NO_IMPACTS = np.zeros((0, 7))  # ccd_pass without the hits' weights and normals
@@ -136,11 +145,20 @@ def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, 
         return stats
 
     owners = owner_faces(face_nodes, face_edges, N, edge_nodes.shape[0])
+    # The face pairs of the broad phase, found once over x0 -> x1 padded by h and reused by every
+    # later query while no coordinate of x1 has moved more than h - pad since: a query's swept
+    # boxes then lie within the reference ones grown by that move, so every face pair within
+    # 2 pad now was within 2 h then. The reused pairs hold the query's own, and the vertex-face
+    # and edge-edge pairs, filtered by their own boxes and sorted, are exactly the query's.
+    ref = [None, None]  # [face pairs, x1 when they were found]
 
-    def pairs(xa, xb, pad, fp=None):
+    def pairs(xa, xb, pad):
+        fp, x_ref = ref
+        if fp is None or not REUSE_BROAD_PHASE or not float(np.max(np.abs(x1 - x_ref), initial=0.0)) <= h - pad:
+            boxes = swept_boxes(face_nodes, edge_nodes, x0, x1)
+            fp = ref[0] = overlapping_face_pairs(boxes[2], boxes[3], h, n_fixed_faces, self_pairs)
+            ref[1] = x1.copy()
         boxes = swept_boxes(face_nodes, edge_nodes, xa, xb)
-        if fp is None:
-            fp = overlapping_face_pairs(boxes[2], boxes[3], pad, n_fixed_faces, self_pairs)
         return primitive_pairs(fp, face_nodes, face_edges, edge_nodes, boxes, owners, pad, inv_m, first_fixed, skip)
 
     def count(key_self, key_obstacle, hits, n):
@@ -151,26 +169,16 @@ def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, 
 
     eta = CCD_ETA_FRACTION * h_self  # the thinner layer's: a touch of either kind, a correction that
     sep = CCD_SEPARATION_FRACTION * h_self  # puts no pair beyond its own thickness
-    # 1. proximity at the proposed end positions. Its face pairs come from boxes over the whole
-    # step padded by h, so that the first CCD pass can reuse them: the proximity moves no
-    # coordinate by more than delta, its boxes over the step grow by at most delta, and face
-    # boxes whose gap is then within 2 eta had a gap within 2 (eta + delta) <= 2 h before.
-    fp = None
+    # 1. proximity at the proposed end positions (its pairs: the reference ones, `pairs`)
     if params.proximity_passes > 0:
-        boxes = swept_boxes(face_nodes, edge_nodes, x0, x1)
-        fp = overlapping_face_pairs(boxes[2], boxes[3], h, n_fixed_faces, self_pairs)
-        vf, ee = pairs(x1, None, h, fp)
-        x_prox = x1.copy()
+        vf, ee = pairs(x1, None, h)
         n_self, n_obstacle = proximity_repulsion(vf, ee, face_nodes, edge_nodes, x0, x1, inv_m, h, h_self,
                                                  params.friction, int(params.proximity_passes), first_fixed)
         stats["self_proximity"] = int(n_self)
         if n_fixed_faces:
             stats["obstacle_proximity"] = int(n_obstacle)
-        delta = float(np.max(np.abs(x1 - x_prox))) if N else 0.0
-        if not delta <= h - eta:
-            fp = None
     # 2. CCD passes with corrections
-    vf, ee = pairs(x0, x1, eta, fp)
+    vf, ee = pairs(x0, x1, eta)
     hits = np.empty((vf.shape[0] + ee.shape[0], 4), dtype=np.int64)
     moved = np.zeros(N + 1, dtype=bool)  # first pass: every pair
     for p in range(int(params.ccd_passes)):
