@@ -102,7 +102,9 @@ def test_cameras_by_name_from_conf_camera():
     assert path.names == ("main", "orbit", "sheet_cut") and path.cuts == path.paths[2].cuts
 
 
-def test_the_cameras_table_gives_ratios_to_adaptive_and_every_view():
+def test_the_cameras_table_gives_ratios_to_adaptive_and_every_view(tmp_path):
+    """Faces and time: medians over seeds; errors: the windows of every seed pooled (their mean), or
+    the first seed's summary where a run folder has no windows."""
     import pandas as pd
 
     from paper_figures.cameras import camera_table
@@ -113,7 +115,13 @@ def test_the_cameras_table_gives_ratios_to_adaptive_and_every_view():
     for seed in (0, 1):
         for variant, mode, faces, time in (("adaptive", "adaptive", 2000.0, 0.4), ("viewdep", "viewdep", 1000.0, 0.25),
                                            ("viewdep + side camera", "viewdep", 1600.0, 0.32)):
-            rows.append({**base, "variant": variant, "mode": mode, "seed": seed, "path": f"{variant}{seed}",
+            path = tmp_path / f"{mode}{faces:.0f}_{seed}"
+            if variant != "adaptive":  # the adaptive runs' folders hold no windows: the summary's values
+                path.mkdir()
+                windows = {"member": [0, 0], "sync_frame": [10, 20], "sync_error_px": [10.0 + seed, 12.0 + seed],
+                           "sync_error_px_view_side_wide": [5.0 + seed, 7.0 + seed]}
+                pd.DataFrame(windows).to_parquet(path / "sync.parquet")
+            rows.append({**base, "variant": variant, "mode": mode, "seed": seed, "path": str(path),
                          "faces_mean": faces * (1 + seed), "time_mean_s": time * (1 + seed),
                          "sync_error_px_mean": 10.0 + seed, "sync_error_px_lo": 9.0, "sync_error_px_hi": 11.0,
                          "sync_error_px_view_side_wide_mean": 5.0 + seed, "sync_error_px_view_side_wide_lo": 4.0,
@@ -122,7 +130,9 @@ def test_the_cameras_table_gives_ratios_to_adaptive_and_every_view():
     two = table.loc["viewdep + side camera"]
     assert two["seeds"] == 2 and two["faces_mean"] == 2400.0  # median of 1600 and 3200
     assert two["faces_vs_adaptive"] == 3000.0 / 2400.0 and two["time_vs_adaptive"] == pytest.approx(0.6 / 0.48)
-    assert two["sync_error_px_mean"] == 10.0 and two["sync_error_px_view_side_wide_mean"] == 5.0  # the first seed's
+    assert two["sync_error_px_mean"] == 11.5 and two["sync_error_px_view_side_wide_mean"] == 6.5  # 4 windows
+    assert two["sync_error_px_lo"] <= 11.5 <= two["sync_error_px_hi"]
+    assert table.loc["adaptive", "sync_error_px_mean"] == 10.0  # no windows: the first seed's summary
     assert table.loc["adaptive", "time_vs_adaptive"] == 1.0
 
 

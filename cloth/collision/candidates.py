@@ -42,6 +42,14 @@ def _candidates(face_pairs, face_nodes, face_edges, edge_nodes, n_faces, n_edges
     nv = 0
     ne = 0
     for k in range(P):
+        f, g = face_pairs[k, 0], face_pairs[k, 1]
+        # the faces' own boxes first: every node and edge box lies in its face's, so a pair of
+        # primitives within pad comes from faces within pad (the face pairs may be reused ones,
+        # found with a wider pad at other positions)
+        if (face_lo[f, 0] > face_hi[g, 0] + pad or face_lo[g, 0] > face_hi[f, 0] + pad
+                or face_lo[f, 1] > face_hi[g, 1] + pad or face_lo[g, 1] > face_hi[f, 1] + pad
+                or face_lo[f, 2] > face_hi[g, 2] + pad or face_lo[g, 2] > face_hi[f, 2] + pad):
+            continue
         for side in range(2):
             f = face_pairs[k, side]
             g = face_pairs[k, 1 - side]
