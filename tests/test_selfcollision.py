@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from helpers import build_sim, count_crossings, two_sheets
 
-from cloth.collision.bvh import cross_overlaps, face_boxes, self_overlaps
+from cloth.collision.bvh import build_tree, cross_overlaps, face_boxes, self_overlaps
 from cloth.collision.candidates import candidate_pairs
 from cloth.collision.ccd import point_triangle_closest
 from cloth.collision.response import ccd_pass
@@ -56,7 +56,11 @@ def test_bvh_pairs_equal_brute_force():
         lo2, hi2 = c2 - 0.05, c2 + 0.05
         ov2 = np.all((lo[:, None] <= hi2[None]) & (lo2[None] <= hi[:, None]), axis=2)
         i, j = np.nonzero(ov2)
-        assert sorted(map(tuple, cross_overlaps(lo, hi, lo2, hi2))) == sorted(zip(i, j))
+        cross = cross_overlaps(lo, hi, lo2, hi2)
+        assert list(map(tuple, cross)) == sorted(zip(i, j))
+        if n:  # with the second set's tree given, in the search's own order: the same pairs
+            given = cross_overlaps(lo, hi, lo2, hi2, tree2=build_tree(lo2, hi2), sort=False)
+            assert len(given) == len(cross) and sorted(map(tuple, given)) == list(map(tuple, cross))
 
 
 @pytest.mark.parametrize("seed", range(3))

@@ -134,51 +134,38 @@ def _self_pairs(lo, hi, tree):
 
 
 @njit(cache=True)
-def _traverse(lo, hi, tree, lo2, hi2, tree2):
-    """All overlapping box pairs (index in set 1, index in set 2) between two trees."""
-    alo, ahi, aleft, astart, acount, aorder = tree
-    blo, bhi, bleft, bstart, bcount, border = tree2
+def _tree_pairs(lo, hi, lo2, hi2, tree2):
+    """All overlapping pairs (i, j) of a box i of (lo, hi) and a box j of (lo2, hi2), box by box of
+    the first set down the second's tree."""
+    nlo, nhi, left, start, count, order = tree2
     out = np.empty((max(16, 4 * lo.shape[0]), 2), dtype=np.int64)
     n = 0
-    stack = np.empty((64 + 4 * (aleft.shape[0] + bleft.shape[0]), 2), dtype=np.int64)
-    top = 0
-    stack[0, 0], stack[0, 1] = 0, 0
-    while top >= 0:
-        a, b = stack[top, 0], stack[top, 1]
-        top -= 1
-        if (alo[a, 0] > bhi[b, 0] or blo[b, 0] > ahi[a, 0] or alo[a, 1] > bhi[b, 1] or blo[b, 1] > ahi[a, 1]
-                or alo[a, 2] > bhi[b, 2] or blo[b, 2] > ahi[a, 2]):
-            continue
-        a_leaf, b_leaf = aleft[a] < 0, bleft[b] < 0
-        if a_leaf and b_leaf:
-            for p in range(astart[a], astart[a] + acount[a]):
-                i = aorder[p]
-                for q in range(bstart[b], bstart[b] + bcount[b]):
-                    j = border[q]
-                    if not (lo[i, 0] > hi2[j, 0] or lo2[j, 0] > hi[i, 0] or lo[i, 1] > hi2[j, 1]
-                            or lo2[j, 1] > hi[i, 1] or lo[i, 2] > hi2[j, 2] or lo2[j, 2] > hi[i, 2]):
-                        if n == out.shape[0]:
-                            grown = np.empty((2 * n, 2), dtype=np.int64)
-                            grown[:n] = out[:n]
-                            out = grown
-                        out[n, 0] = i
-                        out[n, 1] = j
-                        n += 1
-            continue
-        # descend into the larger box (by its longest side); a leaf is never descended
-        size_a = max(ahi[a, 0] - alo[a, 0], max(ahi[a, 1] - alo[a, 1], ahi[a, 2] - alo[a, 2]))
-        size_b = max(bhi[b, 0] - blo[b, 0], max(bhi[b, 1] - blo[b, 1], bhi[b, 2] - blo[b, 2]))
-        split_a = b_leaf or (not a_leaf and size_a >= size_b)
-        for h in range(2):
-            top += 1
-            if top == stack.shape[0]:
-                grown = np.empty((2 * stack.shape[0], 2), dtype=np.int64)
-                grown[:top] = stack[:top]
-                stack = grown
-            if split_a:
-                stack[top, 0], stack[top, 1] = aleft[a] + h, b
-            else:
-                stack[top, 0], stack[top, 1] = a, bleft[b] + h
+    stack = np.empty(64 + 2 * left.shape[0], dtype=np.int64)
+    for i in range(lo.shape[0]):
+        top = 0
+        stack[0] = 0
+        while top >= 0:
+            k = stack[top]
+            top -= 1
+            if (nlo[k, 0] > hi[i, 0] or lo[i, 0] > nhi[k, 0] or nlo[k, 1] > hi[i, 1] or lo[i, 1] > nhi[k, 1]
+                    or nlo[k, 2] > hi[i, 2] or lo[i, 2] > nhi[k, 2]):
+                continue
+            if left[k] >= 0:
+                stack[top + 1] = left[k]
+                stack[top + 2] = left[k] + 1
+                top += 2
+                continue
+            for a in range(start[k], start[k] + count[k]):
+                j = order[a]
+                if not (lo2[j, 0] > hi[i, 0] or lo[i, 0] > hi2[j, 0] or lo2[j, 1] > hi[i, 1] or lo[i, 1] > hi2[j, 1]
+                        or lo2[j, 2] > hi[i, 2] or lo[i, 2] > hi2[j, 2]):
+                    if n == out.shape[0]:
+                        grown = np.empty((2 * n, 2), dtype=np.int64)
+                        grown[:n] = out[:n]
+                        out = grown
+                    out[n, 0] = i
+                    out[n, 1] = j
+                    n += 1
     return out[:n]
 
 
@@ -207,15 +194,21 @@ def self_overlaps(lo: np.ndarray, hi: np.ndarray, sort: bool = True) -> np.ndarr
     return np.column_stack([key // lo.shape[0], key % lo.shape[0]])
 
 
-def cross_overlaps(lo: np.ndarray, hi: np.ndarray, lo2: np.ndarray, hi2: np.ndarray) -> np.ndarray:
+def cross_overlaps(lo: np.ndarray, hi: np.ndarray, lo2: np.ndarray, hi2: np.ndarray, tree2=None,
+                   sort: bool = True) -> np.ndarray:
     """Index pairs (i, j) of a box i of the first set overlapping a box j of the second, (P, 2),
-    sorted lexicographically."""
+    sorted lexicographically (sort=False: in the search's own order). `tree2`: the second set's
+    tree (`build_tree(lo2, hi2)`) when the caller has it already (an obstacle queried again and
+    again within a collision pass)."""
     lo, hi = _check_boxes(lo, hi)
     lo2, hi2 = _check_boxes(lo2, hi2)
     if lo.shape[0] == 0 or lo2.shape[0] == 0:
         return np.empty((0, 2), dtype=np.int64)
-    pairs = _traverse(lo, hi, build_tree(lo, hi), lo2, hi2, build_tree(lo2, hi2))
-    return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    pairs = _tree_pairs(lo, hi, lo2, hi2, build_tree(lo2, hi2) if tree2 is None else tree2)
+    if not sort:
+        return pairs
+    key = np.sort(pairs[:, 0] * lo2.shape[0] + pairs[:, 1])  # j < n2: the key orders as (i, j)
+    return np.column_stack([key // lo2.shape[0], key % lo2.shape[0]])
 
 
 def face_boxes(face_nodes: np.ndarray, x0: np.ndarray, x1: np.ndarray | None = None,

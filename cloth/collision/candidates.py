@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from cloth.collision.bvh import cross_overlaps, self_overlaps
+from cloth.collision.bvh import build_tree, cross_overlaps, self_overlaps
 
 # The kernel's tests are written out, not calls of helpers: a call of a numba function with
 # array arguments per pair (reference counts of each array) cost more than the tests themselves,
@@ -147,18 +147,25 @@ def swept_boxes(face_nodes, edge_nodes, x0, x1):
     return _box_kernel(face_nodes, edge_nodes, x0, x0 if x1 is None else x1)
 
 
-def overlapping_face_pairs(face_lo, face_hi, pad, n_fixed_faces=0, self_pairs=True):
+def overlapping_face_pairs(face_lo, face_hi, pad, n_fixed_faces=0, self_pairs=True, cache=None):
     """Face pairs (P, 2) whose boxes, inflated by pad, overlap: all of them, or, with
     `n_fixed_faces` obstacle triangles last, those between the cloth and the obstacles (and
-    within the cloth if `self_pairs`), never two obstacle faces."""
+    within the cloth if `self_pairs`), never two obstacle faces. Any order (the candidates are
+    sorted). `cache` (a dict, optional): keeps the obstacle triangles' tree for the next call of the
+    same collision pass, whose obstacle boxes and pad are the same (obstacle nodes do not move)."""
     lo, hi = face_lo - pad, face_hi + pad
     if not n_fixed_faces:
-        return self_overlaps(lo, hi, sort=False)  # the candidates are sorted: any order
+        return self_overlaps(lo, hi, sort=False)
     Fc = lo.shape[0] - int(n_fixed_faces)
-    # cloth faces whose boxes meet the obstacles' overall box: the others cannot touch them
-    olo, ohi = lo[Fc:].min(axis=0), hi[Fc:].max(axis=0)
-    near = np.flatnonzero(np.all((lo[:Fc] <= ohi) & (hi[:Fc] >= olo), axis=1))
-    cross = cross_overlaps(lo[near], hi[near], lo[Fc:], hi[Fc:])
+    olo, ohi = np.ascontiguousarray(lo[Fc:]), np.ascontiguousarray(hi[Fc:])
+    tree = None if cache is None else cache.get("obstacle_tree")
+    if tree is None:
+        tree = build_tree(olo, ohi)
+        if cache is not None:
+            cache["obstacle_tree"] = tree
+    # cloth faces whose boxes meet the obstacles' overall box (the tree's root): the others cannot touch them
+    near = np.flatnonzero(np.all((lo[:Fc] <= tree[1][0]) & (hi[:Fc] >= tree[0][0]), axis=1))
+    cross = cross_overlaps(lo[near], hi[near], olo, ohi, tree2=tree, sort=False)
     parts = [np.column_stack([near[cross[:, 0]], cross[:, 1] + Fc])]
     if self_pairs:
         parts.insert(0, self_overlaps(lo[:Fc], hi[:Fc], sort=False))

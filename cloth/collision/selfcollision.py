@@ -151,12 +151,13 @@ def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, 
     # 2 pad now was within 2 h then. The reused pairs hold the query's own, and the vertex-face
     # and edge-edge pairs, filtered by their own boxes and sorted, are exactly the query's.
     ref = [None, None]  # [face pairs, x1 when they were found]
+    obstacle_cache = {}  # the obstacle triangles' tree, built once: their nodes never move in the pass
 
     def pairs(xa, xb, pad):
         fp, x_ref = ref
         if fp is None or not REUSE_BROAD_PHASE or not float(np.max(np.abs(x1 - x_ref), initial=0.0)) <= h - pad:
             boxes = swept_boxes(face_nodes, edge_nodes, x0, x1)
-            fp = ref[0] = overlapping_face_pairs(boxes[2], boxes[3], h, n_fixed_faces, self_pairs)
+            fp = ref[0] = overlapping_face_pairs(boxes[2], boxes[3], h, n_fixed_faces, self_pairs, obstacle_cache)
             ref[1] = x1.copy()
         boxes = swept_boxes(face_nodes, edge_nodes, xa, xb)
         return primitive_pairs(fp, face_nodes, face_edges, edge_nodes, boxes, owners, pad, inv_m, first_fixed, skip)
