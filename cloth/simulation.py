@@ -151,6 +151,7 @@ class Simulation(StepControl, Restart, FrameRecord):
                                                                           friction=scene.friction)
                                if self.stages.obstacle_ccd else None)
         self._inside_at_start = None  # free nodes inside an obstacle at the step's start (obstacle_ccd skips them)
+        self._collision_trees = {}  # the mesh obstacles' broad-phase tree, refitted from pass to pass (not saved)
         # (n_nodes,) bool: free nodes a remesh made inside an obstacle, exempt from obstacle contact
         # until they are out of it (the remesher sets it, :meth:`contact_exempt`, PASSING_DEPTH)
         self.node_passing = np.zeros(scene.mesh.n_nodes, dtype=bool)
@@ -171,9 +172,16 @@ class Simulation(StepControl, Restart, FrameRecord):
         if self.stages.obstacle_contact:
             self.obstacle_set.set_time(0.0)
 
+    def __getstate__(self) -> dict:
+        """Pickle (checkpoints) without the collision pass's kept tree: a cache, rebuilt on first use."""
+        state = self.__dict__.copy()
+        state.pop("_collision_trees", None)
+        return state
+
     def __setstate__(self, state: dict) -> None:
         """Unpickle (checkpoints); a checkpoint of code before the stage plan gets its plan here."""
         self.__dict__.update(state)
+        self._collision_trees = {}
         if "stages" not in state:
             self.stages = plan_stages(self.scene, self.remesher, self.buckling)
         for name, value in (("faces_compensated", 0), ("intersections_pending", 0), ("untangle_due", False),
@@ -428,7 +436,8 @@ class Simulation(StepControl, Restart, FrameRecord):
                 skip[self._inside_at_start] = True
             s = resolve_collisions_with_obstacles(mesh.face_nodes, mesh.face_edges, mesh.edge_nodes, x_start,
                                                   mesh.node_x, mesh.node_m, mesh.node_pinned, params, obstacles,
-                                                  self_pairs=self.self_collision is not None, skip=skip)
+                                                  self_pairs=self.self_collision is not None, skip=skip,
+                                                  trees=self._collision_trees)
             for key in ("obstacle_proximity", "obstacle_ccd_hits"):
                 stats[key] = max(stats.get(key, 0), s[key])
             stats["obstacle_collisions_left"] = max(stats["obstacle_collisions_left"], s["obstacle_collisions_left"])

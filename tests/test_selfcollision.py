@@ -90,6 +90,30 @@ def test_reused_broad_phase_gives_the_pairs_of_a_fresh_one(monkeypatch, seed):
     assert runs[0][1] == runs[1][1]
 
 
+def test_a_kept_obstacle_tree_is_refitted_and_finds_the_pairs_of_a_fresh_one():
+    """candidates.obstacle_tree: a tree kept from pass to pass is refitted to the boxes' new places
+    (the same object comes back) and finds exactly the pairs a fresh tree finds; moved far enough
+    to loosen it past REFIT_GROWTH, it is built again."""
+    from cloth.collision.candidates import REFIT_GROWTH, obstacle_tree
+    rng = np.random.default_rng(3)
+    centre, size = rng.random((300, 3)), 0.02 + 0.02 * rng.random((300, 3))
+    query = rng.random((80, 3))
+    qlo, qhi = query - 0.05, query + 0.05
+    trees = {}
+    first = obstacle_tree(centre - size, centre + size, trees)
+    moved = centre + 0.01 * rng.normal(size=centre.shape)  # a small coherent motion: refitted
+    lo, hi = moved - size, moved + size
+    again = obstacle_tree(lo, hi, trees)
+    assert again is first
+    fresh = cross_overlaps(qlo, qhi, lo, hi)
+    assert sorted(map(tuple, cross_overlaps(qlo, qhi, lo, hi, tree2=again, sort=False))) == list(map(tuple, fresh))
+    shuffled = rng.permutation(moved)  # every box elsewhere: the refitted tree is loose, built again
+    lo, hi = shuffled - size, shuffled + size
+    rebuilt = obstacle_tree(lo, hi, trees)
+    assert rebuilt is not first and trees["tree"] is rebuilt
+    assert np.sum(rebuilt[1] - rebuilt[0]) <= REFIT_GROWTH * trees["extent"]
+
+
 def test_bvh_rejects_bad_boxes():
     with pytest.raises(ValueError, match="finite"):
         self_overlaps(np.array([[0.0, 0, np.nan]]), np.ones((1, 3)))

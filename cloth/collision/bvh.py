@@ -87,6 +87,32 @@ def build_tree(lo, hi):
     return nlo[:n_nodes], nhi[:n_nodes], left[:n_nodes], start[:n_nodes], count[:n_nodes], order
 
 
+@njit(cache=True)
+def refit(lo, hi, nlo, nhi, left, start, count, order):
+    """Refit a tree's node boxes (in place) to new boxes (lo, hi) of the same items: children are
+    stored after their parent, so one pass in reverse order sees every child first. Returns the
+    summed extents of the node boxes (a measure of how loose the tree has become)."""
+    total = 0.0
+    for k in range(nlo.shape[0] - 1, -1, -1):
+        for d in range(3):
+            nlo[k, d] = np.inf
+            nhi[k, d] = -np.inf
+        if left[k] < 0:
+            for a in range(start[k], start[k] + count[k]):
+                i = order[a]
+                for d in range(3):
+                    nlo[k, d] = min(nlo[k, d], lo[i, d])
+                    nhi[k, d] = max(nhi[k, d], hi[i, d])
+        else:
+            for c in range(left[k], left[k] + 2):
+                for d in range(3):
+                    nlo[k, d] = min(nlo[k, d], nlo[c, d])
+                    nhi[k, d] = max(nhi[k, d], nhi[c, d])
+        for d in range(3):
+            total += nhi[k, d] - nlo[k, d]
+    return total
+
+
 # The box tests below are written out, not called: a call of a numba function with array arguments
 # per tested pair (reference counts of every array) made the searches 3-4x slower, and numba's own
 # inlining (inline="always") 3x; so was a helper that grows the output per pair.

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from cloth.collision.bvh import build_tree, cross_overlaps, self_overlaps
+from cloth.collision.bvh import build_tree, cross_overlaps, refit, self_overlaps
 
 # The kernel's tests are written out, not calls of helpers: a call of a numba function with
 # array arguments per pair (reference counts of each array) cost more than the tests themselves,
@@ -147,12 +147,36 @@ def swept_boxes(face_nodes, edge_nodes, x0, x1):
     return _box_kernel(face_nodes, edge_nodes, x0, x0 if x1 is None else x1)
 
 
-def overlapping_face_pairs(face_lo, face_hi, pad, n_fixed_faces=0, self_pairs=True, cache=None):
+# An obstacle's tree kept from pass to pass is refitted to its new boxes (its triangles do not
+# change) until its node boxes' summed extents grow past this factor of a fresh build's; then it is
+# built again. A body moves coherently, so the refitted tree stays tight for many steps; the pairs
+# found are the same either way (a tree only decides how fast they are found).
+REFIT_GROWTH = 1.5
+
+
+def obstacle_tree(lo, hi, trees: dict | None):
+    """The tree over the obstacle triangles' boxes (lo, hi): `trees` (kept by the caller from pass
+    to pass, or None) holds the last one, refitted when it has as many boxes and has not grown past
+    REFIT_GROWTH, built afresh otherwise."""
+    kept = None if trees is None else trees.get("tree")
+    if kept is not None and kept[0].shape[0] and kept[5].shape[0] == lo.shape[0]:
+        nlo, nhi, left, start, count, order = kept
+        if refit(lo, hi, nlo, nhi, left, start, count, order) <= REFIT_GROWTH * trees["extent"]:
+            return kept
+    tree = build_tree(lo, hi)
+    if trees is not None:
+        trees["tree"] = tree
+        trees["extent"] = float(np.sum(tree[1] - tree[0]))
+    return tree
+
+
+def overlapping_face_pairs(face_lo, face_hi, pad, n_fixed_faces=0, self_pairs=True, cache=None, trees=None):
     """Face pairs (P, 2) whose boxes, inflated by pad, overlap: all of them, or, with
     `n_fixed_faces` obstacle triangles last, those between the cloth and the obstacles (and
     within the cloth if `self_pairs`), never two obstacle faces. Any order (the candidates are
     sorted). `cache` (a dict, optional): keeps the obstacle triangles' tree for the next call of the
-    same collision pass, whose obstacle boxes and pad are the same (obstacle nodes do not move)."""
+    same collision pass, whose obstacle boxes and pad are the same (obstacle nodes do not move);
+    `trees` (a dict kept from pass to pass, optional): see `obstacle_tree`."""
     lo, hi = face_lo - pad, face_hi + pad
     if not n_fixed_faces:
         return self_overlaps(lo, hi, sort=False)
@@ -160,7 +184,7 @@ def overlapping_face_pairs(face_lo, face_hi, pad, n_fixed_faces=0, self_pairs=Tr
     olo, ohi = np.ascontiguousarray(lo[Fc:]), np.ascontiguousarray(hi[Fc:])
     tree = None if cache is None else cache.get("obstacle_tree")
     if tree is None:
-        tree = build_tree(olo, ohi)
+        tree = obstacle_tree(olo, ohi, trees)
         if cache is not None:
             cache["obstacle_tree"] = tree
     # cloth faces whose boxes meet the obstacles' overall box (the tree's root): the others cannot touch them

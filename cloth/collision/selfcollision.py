@@ -120,7 +120,7 @@ class SelfCollisionParams:
 
 def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, pinned,
                             params: SelfCollisionParams, *, n_fixed_faces: int = 0, first_fixed=None,
-                            self_pairs: bool = True, skip=None) -> dict:
+                            self_pairs: bool = True, skip=None, trees: dict | None = None) -> dict:
     """Make the step x0 -> x1 free of cloth self-collisions (modifies x1 in place).
 
     Returns the record: proximity pairs, CCD collisions found in the first pass, CCD passes,
@@ -131,6 +131,7 @@ def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, 
     pairs are taken between them and the cloth, and within the cloth only if `self_pairs`;
     `skip` (N,) bool: cloth nodes left out of the pairs with obstacle nodes. The record then
     counts the pairs with an obstacle node apart (OBSTACLE_RECORD); the self_ keys count the rest.
+    `trees`: the obstacles' tree kept from pass to pass (see `resolve_collisions_with_obstacles`).
     """
     h = params.thickness  # pairs with an obstacle node; the broad phase pads by it
     h_self = h if params.self_thickness is None else min(float(params.self_thickness), h)  # cloth-cloth pairs
@@ -157,7 +158,8 @@ def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, 
         fp, x_ref = ref
         if fp is None or not REUSE_BROAD_PHASE or not float(np.max(np.abs(x1 - x_ref), initial=0.0)) <= h - pad:
             boxes = swept_boxes(face_nodes, edge_nodes, x0, x1)
-            fp = ref[0] = overlapping_face_pairs(boxes[2], boxes[3], h, n_fixed_faces, self_pairs, obstacle_cache)
+            fp = ref[0] = overlapping_face_pairs(boxes[2], boxes[3], h, n_fixed_faces, self_pairs, obstacle_cache,
+                                                 trees)
             ref[1] = x1.copy()
         boxes = swept_boxes(face_nodes, edge_nodes, xa, xb)
         return primitive_pairs(fp, face_nodes, face_edges, edge_nodes, boxes, owners, pad, inv_m, first_fixed, skip)
@@ -233,7 +235,7 @@ def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, 
 
 def resolve_collisions_with_obstacles(face_nodes, face_edges, edge_nodes, x0, x1, node_m, pinned,
                                       params: SelfCollisionParams, obstacles, *, self_pairs: bool = True,
-                                      skip=None) -> dict:
+                                      skip=None, trees: dict | None = None) -> dict:
     """Make the step x0 -> x1 of the cloth free of collisions with triangle-mesh obstacles (and,
     with `self_pairs`, with itself, in the same pass), modifying x1 in place; the obstacles
     do not move.
@@ -242,8 +244,10 @@ def resolve_collisions_with_obstacles(face_nodes, face_edges, edge_nodes, x0, x1
     each obstacle's vertex positions at the step's start and end (linear in between) and its
     topology (cloth.collision.meshobstacle.TriangleMeshObstacle.collision_topology). skip (n,) bool:
     cloth nodes to leave out of the cloth-obstacle pairs (e.g. found inside an obstacle at the
-    step's start, where keeping them on their starting side would hold them in). Returns the
-    record of `resolve_self_collisions` with OBSTACLE_RECORD.
+    step's start, where keeping them on their starting side would hold them in). trees: a dict the
+    caller keeps from pass to pass, where the obstacles' broad-phase tree is kept and refitted
+    (cloth.collision.candidates.obstacle_tree). Returns the record of `resolve_self_collisions`
+    with OBSTACLE_RECORD.
     """
     if not len(obstacles) and not self_pairs:
         return {**SELF_COLLISION_RECORD, **OBSTACLE_RECORD}
@@ -267,6 +271,7 @@ def resolve_collisions_with_obstacles(face_nodes, face_edges, edge_nodes, x0, x1
         np.ascontiguousarray(np.vstack(fn)), np.ascontiguousarray(np.vstack(fe)), np.ascontiguousarray(np.vstack(en)),
         x0_all, x1_all, np.concatenate([node_m, np.ones(extra)]), np.concatenate([pinned, np.ones(extra, dtype=bool)]),
         params, n_fixed_faces=n_fixed, first_fixed=n, self_pairs=self_pairs,
-        skip=None if skip is None else np.concatenate([np.asarray(skip, dtype=bool), np.zeros(extra, dtype=bool)]))
+        skip=None if skip is None else np.concatenate([np.asarray(skip, dtype=bool), np.zeros(extra, dtype=bool)]),
+        trees=trees)
     x1[:] = x1_all[:n]
     return stats

@@ -205,7 +205,8 @@ def collision_free_motion(sim, x_from: np.ndarray) -> int:
     skip[free] |= sim.obstacle_set.query(x_from[free])[0] < 0.0
     s = resolve_collisions_with_obstacles(mesh.face_nodes, mesh.face_edges, mesh.edge_nodes, x_from, mesh.node_x,
                                           mesh.node_m, mesh.node_pinned, sim.mesh_collision, still,
-                                          self_pairs=sim.self_collision is not None, skip=skip)
+                                          self_pairs=sim.self_collision is not None, skip=skip,
+                                          trees=getattr(sim, "_collision_trees", None))
     return int(s["self_ccd_hits"] + s["obstacle_ccd_hits"])
 
 
