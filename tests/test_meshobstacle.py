@@ -342,3 +342,34 @@ def test_untangle_moves_only_the_cloth_off_a_mesh_obstacle_poking_through_it():
     assert np.array_equal(tetra.positions, before)
     assert len(find_intersections(both, np.vstack([x, before]), n_fixed_faces=4)[0]) == 0
     assert np.all(np.isfinite(x)) and np.any(x != cloth.node_x)
+
+
+# The kernel sums in numpy's order, but numpy's own order (its einsum, its vectorised arctan2) may
+# differ on another CPU in the last bit: compared to round-off of unit vectors and angles.
+PSEUDO_NORMAL_TOL = 1e-13
+
+
+def test_pseudo_normals_kernel_matches_the_definition():
+    """meshkernels.pseudo_normals against the vectorised definition on a jittered icosphere: unit
+    face normals, vertex pseudo-normals weighted by the corner angles, edge pseudo-normals the sum
+    of the two faces' normals (every edge of a closed mesh has two)."""
+    from cloth.collision.meshkernels import pseudo_normals
+    v, f = icosphere(0.3, subdivisions=2)
+    x = v + 0.01 * np.random.default_rng(0).normal(size=v.shape)
+    ob = TriangleMeshObstacle(x, f)
+    t = x[f]
+    n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    fn = n / np.linalg.norm(n, axis=1)[:, None]
+    vp = np.zeros_like(x)
+    for k in range(3):
+        e1, e2 = t[:, (k + 1) % 3] - t[:, k], t[:, (k + 2) % 3] - t[:, k]
+        angle = np.arctan2(np.linalg.norm(np.cross(e1, e2), axis=1), np.sum(e1 * e2, axis=1))
+        np.add.at(vp, f[:, k], angle[:, None] * fn)
+    face_n, vert_pn, edge_pn = np.empty((len(f), 3)), np.empty_like(x), np.empty((ob._n_edges, 3))
+    pseudo_normals(x, ob.faces, ob._face_edge, face_n, vert_pn, edge_pn)
+    assert np.allclose(face_n, fn, rtol=0, atol=PSEUDO_NORMAL_TOL)
+    assert np.allclose(vert_pn, vp, rtol=0, atol=PSEUDO_NORMAL_TOL)
+    ep = np.zeros((ob._n_edges, 3))
+    np.add.at(ep, ob._face_edge.ravel(), np.repeat(fn, 3, axis=0))
+    assert np.allclose(edge_pn, ep, rtol=0, atol=PSEUDO_NORMAL_TOL)
+    assert np.array_equal(ob.face_normals, face_n) and np.array_equal(ob._vert_pn, vert_pn)  # what set_time keeps

@@ -124,3 +124,61 @@ def query_closest(points, x, faces, face_n, vert_pn, face_edge_pn, face_comp, co
                 for k in range(3):
                     normal[i, k] = n_c[k]
 
+
+
+@njit(cache=True)
+def _corner_sides(x, faces, face_n):
+    """Unit face normals into face_n (F, 3) (0 for a degenerate face), and per corner k of each
+    face the sine and cosine sides (|e1 x e2|, e1 . e2) of its angle, (3, F) each, e1 and e2 the
+    edges from the corner to the next two."""
+    F = faces.shape[0]
+    sin_side, cos_side = np.empty((3, F)), np.empty((3, F))
+    for f in range(F):
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        u0, u1, u2 = x[b, 0] - x[a, 0], x[b, 1] - x[a, 1], x[b, 2] - x[a, 2]
+        w0, w1, w2 = x[c, 0] - x[a, 0], x[c, 1] - x[a, 1], x[c, 2] - x[a, 2]
+        n0, n1, n2 = u1 * w2 - u2 * w1, u2 * w0 - u0 * w2, u0 * w1 - u1 * w0
+        L = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        if not L > 0.0:
+            L = 1.0
+        face_n[f, 0], face_n[f, 1], face_n[f, 2] = n0 / L, n1 / L, n2 / L
+        for k in range(3):
+            p, q, r = faces[f, k], faces[f, (k + 1) % 3], faces[f, (k + 2) % 3]
+            e10, e11, e12 = x[q, 0] - x[p, 0], x[q, 1] - x[p, 1], x[q, 2] - x[p, 2]
+            e20, e21, e22 = x[r, 0] - x[p, 0], x[r, 1] - x[p, 1], x[r, 2] - x[p, 2]
+            c0, c1, c2 = e11 * e22 - e12 * e21, e12 * e20 - e10 * e22, e10 * e21 - e11 * e20
+            sin_side[k, f] = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+            # summed as numpy's einsum sums three terms, (0 + 2) + 1: the vectorised version's bits
+            cos_side[k, f] = (e10 * e20 + e12 * e22) + e11 * e21
+    return sin_side, cos_side
+
+
+@njit(cache=True)
+def _accumulate_normals(faces, face_edge, face_n, angle, vert_pn, edge_pn):
+    """Angle-weighted vertex pseudo-normals into vert_pn and edge pseudo-normals (the sum of the
+    faces' normals) into edge_pn, summed as numpy's bincount sums them (face by face, corner 0 of
+    every face, then 1, then 2)."""
+    part = np.empty(vert_pn.shape)
+    vert_pn[:] = 0.0
+    for k in range(3):
+        part[:] = 0.0
+        for f in range(faces.shape[0]):
+            p = faces[f, k]
+            for d in range(3):
+                part[p, d] += angle[k, f] * face_n[f, d]
+        vert_pn += part
+    edge_pn[:] = 0.0
+    for f in range(faces.shape[0]):
+        for j in range(3):
+            e = face_edge[f, j]
+            for d in range(3):
+                edge_pn[e, d] += face_n[f, d]
+
+
+def pseudo_normals(x, faces, face_edge, face_n, vert_pn, edge_pn):
+    """Unit face normals, angle-weighted vertex pseudo-normals and edge pseudo-normals of the mesh
+    at positions x, into face_n (F, 3), vert_pn (V, 3) and edge_pn (E, 3). The corner angles use
+    numpy's arctan2 (its vectorised one differs from the C library's in the last bit for some
+    arguments), so the result is bitwise the earlier numpy version's."""
+    sin_side, cos_side = _corner_sides(x, faces, face_n)
+    _accumulate_normals(faces, face_edge, face_n, np.arctan2(sin_side, cos_side), vert_pn, edge_pn)

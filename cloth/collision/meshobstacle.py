@@ -44,7 +44,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from cloth.collision.bvh import build_tree
-from cloth.collision.meshkernels import query_closest, refit_tree
+from cloth.collision.meshkernels import pseudo_normals, query_closest, refit_tree
 
 VELOCITY_STEP = 1e-4  # s, central difference of a callable's positions (error O(h^2 x''') m/s)
 REBUILD_GROWTH = 1.5  # rebuild the tree when refitting has grown its boxes' summed extents by this factor
@@ -217,24 +217,13 @@ class TriangleMeshObstacle:
 
     # ---- derived geometry (after positions change) ----------------------------------------
     def _update_normals(self) -> None:
-        x, faces = self.positions, self.faces
-        t = x[faces]  # (F, 3, 3)
-        n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-        L = np.linalg.norm(n, axis=1)
-        self.face_normals = np.ascontiguousarray(n / np.where(L > 0, L, 1.0)[:, None])  # (F, 3) unit (0 if degenerate)
-        vert_pn = np.zeros_like(x)
-        for k in range(3):  # angle-weighted vertex pseudo-normals
-            e1 = t[:, (k + 1) % 3] - t[:, k]
-            e2 = t[:, (k + 2) % 3] - t[:, k]
-            angle = np.arctan2(np.linalg.norm(np.cross(e1, e2), axis=1), np.einsum("fi,fi->f", e1, e2))
-            w = angle[:, None] * self.face_normals
-            for d in range(3):
-                vert_pn[:, d] += np.bincount(faces[:, k], w[:, d], minlength=x.shape[0])
-        edge_pn = np.zeros((self._n_edges, 3))
-        for d in range(3):
-            edge_pn[:, d] = np.bincount(self._face_edge.ravel(), np.repeat(self.face_normals[:, d], 3),
-                                        minlength=self._n_edges)
-        self._vert_pn = vert_pn
+        """Unit face normals, angle-weighted vertex pseudo-normals and edge pseudo-normals (numba:
+        cloth.collision.meshkernels.pseudo_normals)."""
+        x = self.positions
+        self.face_normals = np.empty((self.faces.shape[0], 3))  # (F, 3) unit (0 if degenerate)
+        self._vert_pn = np.empty_like(x)
+        edge_pn = np.empty((self._n_edges, 3))
+        pseudo_normals(x, self.faces, self._face_edge, self.face_normals, self._vert_pn, edge_pn)
         self._face_edge_pn = np.ascontiguousarray(edge_pn[self._face_edge])  # (F, 3, 3)
         size = float(np.max(x.max(axis=0) - x.min(axis=0)))
         self._tiny = TINY_DISTANCE_REL * max(size, 1e-300)
