@@ -26,14 +26,16 @@ from cloth.collision.bvh import build_tree, cross_overlaps, refit, self_overlaps
 
 
 @njit(cache=True)
-def _candidates(face_pairs, face_nodes, face_edges, edge_nodes, n_faces, n_edges, node_lo, node_hi,
-                face_lo, face_hi, edge_lo, edge_hi, node_owner, edge_owner, pad, inv_m, first_fixed, skip):
+def _candidates(face_pairs, face_nodes, edge_nodes, n_faces, n_edges, node_lo, node_hi,
+                face_lo, face_hi, edge_lo, edge_hi, node_start, node_items, edge_start, edge_items, pad, inv_m,
+                first_fixed, skip):
     """Vertex-face keys (node * F + face) and edge-edge keys (e_lo * E + e_hi) of the face
-    pairs, skipping pairs that share a node and pairs whose own swept
-    boxes are farther apart than pad (node, face and edge boxes over the step, unpadded), pairs
-    none of whose nodes can move, and pairs of an obstacle node with a node flagged in `skip`.
+    pairs, skipping pairs that share a node, pairs whose own swept boxes are farther apart than
+    pad (node, face and edge boxes over the step, unpadded), pairs none of whose nodes can move,
+    and pairs of an obstacle node with a node flagged in `skip`.
 
-    Each node and each edge is taken from one face only, its owner (node_owner, edge_owner):
+    Each node and each edge is taken from one face only, its owner (`owner_faces`: the nodes and
+    edges face f owns are node_items[node_start[f]:node_start[f + 1]], and likewise for edges):
     its box lies in its owner's, so a pair whose boxes are within pad comes from the pair of
     owners, which the face pairs hold, and comes once."""
     P = face_pairs.shape[0]
@@ -53,11 +55,9 @@ def _candidates(face_pairs, face_nodes, face_edges, edge_nodes, n_faces, n_edges
         for side in range(2):
             f = face_pairs[k, side]
             g = face_pairs[k, 1 - side]
-            for a in range(3):
-                i = face_nodes[f, a]
-                if node_owner[i] != f:
-                    continue
-                a0, a1, a2 = face_nodes[g, 0], face_nodes[g, 1], face_nodes[g, 2]
+            a0, a1, a2 = face_nodes[g, 0], face_nodes[g, 1], face_nodes[g, 2]
+            for a in range(node_start[f], node_start[f + 1]):
+                i = node_items[a]
                 if i == a0 or i == a1 or i == a2:
                     continue
                 # some node can move, and a pair with an obstacle node (index >= first_fixed) has no
@@ -76,15 +76,11 @@ def _candidates(face_pairs, face_nodes, face_edges, edge_nodes, n_faces, n_edges
                 vf[nv] = i * n_faces + g
                 nv += 1
         f, g = face_pairs[k, 0], face_pairs[k, 1]
-        for a in range(3):
-            e1 = face_edges[f, a]
-            if edge_owner[e1] != f:
-                continue
+        for a in range(edge_start[f], edge_start[f + 1]):
+            e1 = edge_items[a]
             p, q = edge_nodes[e1, 0], edge_nodes[e1, 1]
-            for b in range(3):
-                e2 = face_edges[g, b]
-                if edge_owner[e2] != g:
-                    continue
+            for b in range(edge_start[g], edge_start[g + 1]):
+                e2 = edge_items[b]
                 P2, Q2 = edge_nodes[e2, 0], edge_nodes[e2, 1]
                 if p == P2 or p == Q2 or q == P2 or q == Q2:
                     continue
@@ -196,21 +192,34 @@ def overlapping_face_pairs(face_lo, face_hi, pad, n_fixed_faces=0, self_pairs=Tr
     return np.ascontiguousarray(np.vstack(parts))
 
 
+def _by_face(owner: np.ndarray, n_faces: int) -> tuple[np.ndarray, np.ndarray]:
+    """(start (F + 1,), items): the items whose owner is face f are items[start[f]:start[f + 1]]."""
+    items = np.flatnonzero(owner >= 0)
+    of = owner[items]
+    items = items[np.argsort(of, kind="stable")]
+    start = np.zeros(n_faces + 1, dtype=np.int64)
+    np.cumsum(np.bincount(of, minlength=n_faces), out=start[1:])
+    return start, items
+
+
 def owner_faces(face_nodes, face_edges, n_nodes, n_edges):
-    """One face of each node and of each edge (-1 for a node in no face): see `_candidates`."""
-    owner = np.repeat(np.arange(face_nodes.shape[0], dtype=np.int64), 3)
+    """One face of each node and of each edge (the last face that holds it; a node in no face has
+    none), as the nodes and the edges each face owns: (node_start, node_items, edge_start,
+    edge_items), see `_candidates`."""
+    F = face_nodes.shape[0]
+    owner = np.repeat(np.arange(F, dtype=np.int64), 3)
     node_owner = np.full(n_nodes, -1, dtype=np.int64)
     node_owner[face_nodes.ravel()] = owner
     edge_owner = np.full(n_edges, -1, dtype=np.int64)
     edge_owner[face_edges.ravel()] = owner
-    return node_owner, edge_owner
+    return (*_by_face(node_owner, F), *_by_face(edge_owner, F))
 
 
 def primitive_pairs(fp, face_nodes, face_edges, edge_nodes, boxes, owners, pad, inv_m, first_fixed, skip):
     """Vertex-face and edge-edge pairs (see candidate_pairs) of the face pairs fp, whose own boxes
     (`swept_boxes`) are within pad."""
     F, E = face_nodes.shape[0], edge_nodes.shape[0]
-    vf, ee = _candidates(fp, face_nodes, face_edges, edge_nodes, F, E, *boxes, *owners, pad, inv_m, first_fixed, skip)
+    vf, ee = _candidates(fp, face_nodes, edge_nodes, F, E, *boxes, *owners, pad, inv_m, first_fixed, skip)
     vf, ee = _sorted_unique(vf), _sorted_unique(ee)
     return (np.stack([vf // F, vf % F], axis=1), np.stack([ee // E, ee % E], axis=1))
 
