@@ -7,7 +7,7 @@
                                     [--frames 20] [--warmup 10] [--out DIR]
     python -m experiments.benchmark --scene karate|solo_dancer|PATH/conf/sphere.json
                                     [--mode adaptive] [--scale small] [--frames 20] [--warmup 5]
-                                    [KEY=VALUE ...]
+                                    [--against REV] [KEY=VALUE ...]
 
 `--modes` times the three modes on one scene (Hydra's config, `--scale`, small by default) at matched mean
 faces: mode=adaptive runs first, and the fixed mesh's resolution_factor is set so that its faces
@@ -27,7 +27,8 @@ writes `scene.csv` and `summary.json`.
 Gauss-Newton one (solver.bending_hessian), one after the other on the same sheet, and prints the
 ratio of their physics and step times at each resolution (projected over Gauss-Newton).
 
-`--against REV` times a previous commit on the same sheets in the same run: for each resolution,
+`--against REV` times a previous commit on the same sheets in the same run (with `--scene`: on the
+same scene, REV's `--scene` benchmark first, per phase and collision part): for each resolution,
 REV's own benchmark (its tree exported with `git archive` into a temporary folder and run there
 as a subprocess, with the same frames, warm-up and solver) and then this tree's, one after the
 other, so that both meet the same machine load; it prints REV's time over this tree's per phase
@@ -242,6 +243,33 @@ def bench_revision(src: Path, resolution: int, frames: int, warmup: int, solver:
     return pd.read_csv(folder / "steps.csv").iloc[0].to_dict()
 
 
+def bench_scene_revision(src: Path, args, out: Path) -> dict:
+    """The scene timed by the benchmark of the tree at `src` (a subprocess, the same options); its scene.csv row."""
+    before = set(out.iterdir()) if out.exists() else set()
+    scene = str(Path(args.scene).expanduser().resolve()) if args.scene.endswith(".json") else args.scene
+    cmd = [sys.executable, "-m", "experiments.benchmark", "--scene", scene, "--mode", args.mode, "--scale", args.scale,
+           "--frames", str(args.frames), "--warmup", str(args.warmup), "--solver", args.solver,
+           "--bending-hessian", args.bending_hessian, "--out", str(out), *args.overrides]
+    done = subprocess.run(cmd, cwd=src, env=_revision_env(src), capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"the scene benchmark of {src.name} failed (exit {done.returncode}; it needs the "
+                           f"--scene option): {done.stderr.strip()[-600:]}")
+    (folder,) = set(out.iterdir()) - before
+    return pd.read_csv(folder / "scene.csv").iloc[0].to_dict()
+
+
+def scene_against_row(rev: dict, head: dict) -> dict:
+    """REV's microseconds per face per step over this tree's, per phase and collision part (>1: faster here)."""
+    row = {"scene": head["scene"], "mode": head["mode"], "faces_rev": float(rev["faces_mean"]),
+           "faces": float(head["faces_mean"]), "steps_per_frame_rev": float(rev["steps_per_frame"]),
+           "steps_per_frame": float(head["steps_per_frame"]),
+           "s_per_frame_rev": float(rev["s_per_frame"]), "s_per_frame": float(head["s_per_frame"])}
+    for key in [k for k in head if k.endswith("_us_per_face_step")]:
+        if key in rev and float(head[key]) > 0:
+            row[key.replace("_us_per_face_step", "_speedup")] = float(rev[key]) / float(head[key])
+    return row
+
+
 def against_row(rev: dict, head: dict) -> dict:
     """REV's seconds per step over this tree's, per phase both record and overall (>1: this tree is faster)."""
     row = {"resolution": head["resolution"], "faces_rev": int(rev["faces"]), "faces": int(head["faces"]),
@@ -285,8 +313,8 @@ def main(argv=None) -> None:
     solver = SolverOptions(method=args.solver)  # a method that cannot run here stops before any work
     against = None
     if args.against is not None:
-        if args.modes or args.scene is not None or args.bending_hessian == "both":
-            parser.error("--against: with the sheet benchmark only (not --modes, --scene or --bending-hessian both)")
+        if args.modes or args.bending_hessian == "both":
+            parser.error("--against: with the sheet or the scene benchmark (not --modes or --bending-hessian both)")
         try:
             against = resolve_revision(args.against)
         except ValueError as err:
@@ -330,11 +358,22 @@ def main(argv=None) -> None:
               f"results in {out_dir}")
         return
     if args.scene is not None:
+        args.frames, args.warmup = frames, warmup
+        rev_row = None
+        if against is not None:  # REV first, then this tree: the same load for both
+            with tempfile.TemporaryDirectory(prefix="cloth-against-") as tmp:
+                src = export_revision(against, Path(tmp) / against[:12])
+                rev_row = bench_scene_revision(src, args, Path(tmp) / "out")
         row = bench_scene(args.scene, args.mode, frames, warmup,
                           [f"solver={args.solver}", f"solver.bending_hessian={args.bending_hessian}",
                            *args.overrides], args.scale)
         write_text_atomic(out_dir / "scene.csv", pd.DataFrame([row]).to_csv(index=False))
-        write_json_atomic(out_dir / "summary.json", {**row, "manifest": environment_manifest(0)})
+        summary = {**row, "manifest": environment_manifest(0)}
+        if rev_row is not None:
+            compared = scene_against_row(rev_row, row)
+            write_text_atomic(out_dir / "against.csv", pd.DataFrame([compared]).to_csv(index=False))
+            summary["against"] = {"rev": args.against, "commit": against, **compared}
+        write_json_atomic(out_dir / "summary.json", summary)
         print(f"{args.scene} ({args.mode}, scale={args.scale}): {row['faces_mean']:.0f} faces, "
               f"{row['steps_per_frame']:.1f} steps per frame (up to {row['steps_per_frame_max']}; the scene asks for "
               f"{row['scene_steps_per_frame']}), "
@@ -346,6 +385,9 @@ def main(argv=None) -> None:
                 for part in COLLISION_PARTS:
                     print(f"    {part:10s} {row[f'collisions_{part}_us_per_face_step']:8.2f}")
         print(f"  {'all':12s} {row['us_per_face_step']:8.2f}   results in {out_dir}")
+        if rev_row is not None:
+            parts = ", ".join(f"{k[:-len('_speedup')]} {v:.2f}x" for k, v in compared.items() if k.endswith("_speedup"))
+            print(f"{args.against} / this tree, per face per step: {parts}")
         return
     rows, compared = [], []
     with tempfile.TemporaryDirectory(prefix="cloth-against-") as tmp:

@@ -145,7 +145,7 @@ def test_benchmark_against_refuses_an_unknown_revision_before_any_work(tmp_path,
     assert not (tmp_path / "out").exists()
     with pytest.raises(SystemExit):
         main(["--against", "HEAD", "--modes", "--out", str(tmp_path / "out")])
-    assert "with the sheet benchmark only" in capsys.readouterr().err
+    assert "with the sheet or the scene benchmark" in capsys.readouterr().err
 
 
 def test_benchmark_against_exports_a_tree_that_imports_its_own_package(tmp_path):
@@ -166,6 +166,28 @@ def test_benchmark_against_row_is_the_previous_time_over_this_trees():
     assert row["speedup"] == pytest.approx(3.0) and row["physics_speedup"] == pytest.approx(4.0)
     assert row["solve_speedup"] == pytest.approx(2.0)
     assert "remesh_speedup" not in row  # a phase the previous commit does not record is not compared
+
+
+def test_benchmark_scene_against_a_revision_writes_its_ratios(tmp_path, monkeypatch, capsys):
+    """--scene with --against: REV's scene benchmark (here stubbed: its run is REV's own code in a
+    subprocess) and this tree's on the same scene; against.csv holds REV's microseconds per face per
+    step over this tree's, per phase and collision part."""
+    from experiments import benchmark
+    seen = {}
+
+    def rev_bench(src, args, out):
+        seen["exported"] = (src / "cloth" / "simulation.py").is_file()  # REV's own tree, while it exists
+        row = benchmark.bench_scene(args.scene, args.mode, args.frames, args.warmup, list(args.overrides), args.scale)
+        return {k: 2.0 * v if k.endswith("_us_per_face_step") else v for k, v in row.items()}
+
+    monkeypatch.setattr(benchmark, "bench_scene_revision", rev_bench)
+    benchmark.main(["--scene", "layered_sheets", "--frames", "2", "--warmup", "1", "--against", "HEAD",
+                    "--out", str(tmp_path), "scene.scales.small.resolution=6"])
+    assert seen["exported"]
+    row = pd.read_csv(_only_child(tmp_path) / "against.csv").iloc[0]
+    assert row["us_per_face_step_speedup"] > 1.0 and row["collisions_pass_us_per_face_step_speedup"] > 1.0
+    assert row["faces"] == row["faces_rev"]  # the same scene, the same trajectory here
+    assert "HEAD / this tree, per face per step" in capsys.readouterr().out
 
 
 def test_a_killed_stability_run_continues_from_its_checkpoint(tmp_path, monkeypatch):
