@@ -264,9 +264,9 @@ def scene_against_row(rev: dict, head: dict) -> dict:
            "faces": float(head["faces_mean"]), "steps_per_frame_rev": float(rev["steps_per_frame"]),
            "steps_per_frame": float(head["steps_per_frame"]),
            "s_per_frame_rev": float(rev["s_per_frame"]), "s_per_frame": float(head["s_per_frame"])}
-    for key in [k for k in head if k.endswith("_us_per_face_step")]:
+    for key in [k for k in head if k.endswith("us_per_face_step")]:  # every phase's and the whole step's
         if key in rev and float(head[key]) > 0:
-            row[key.replace("_us_per_face_step", "_speedup")] = float(rev[key]) / float(head[key])
+            row[key[: -len("us_per_face_step")] + "speedup"] = float(rev[key]) / float(head[key])
     return row
 
 

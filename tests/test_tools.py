@@ -169,24 +169,31 @@ def test_benchmark_against_row_is_the_previous_time_over_this_trees():
 
 
 def test_benchmark_scene_against_a_revision_writes_its_ratios(tmp_path, monkeypatch, capsys):
-    """--scene with --against: REV's scene benchmark (here stubbed: its run is REV's own code in a
-    subprocess) and this tree's on the same scene; against.csv holds REV's microseconds per face per
-    step over this tree's, per phase and collision part."""
+    """--scene with --against: REV's scene benchmark (its own code in a subprocess, stubbed here) and
+    this tree's on the same scene; against.csv holds REV's microseconds per face per step over this
+    tree's, per phase and collision part."""
     from experiments import benchmark
+    head = {"scene": "layered_sheets", "mode": "adaptive", "faces_mean": 72.0, "steps_per_frame": 8.0,
+            "s_per_frame": 0.1, "scene_steps_per_frame": 8, "steps_per_frame_max": 8, "collision_share": 0.5,
+            "us_per_face_step": 10.0, "physics_us_per_face_step": 4.0, "collisions_us_per_face_step": 5.0,
+            "collisions_pass_us_per_face_step": 4.0, "collisions_untangle_us_per_face_step": 0.0}
     seen = {}
 
     def rev_bench(src, args, out):
         seen["exported"] = (src / "cloth" / "simulation.py").is_file()  # REV's own tree, while it exists
-        row = benchmark.bench_scene(args.scene, args.mode, args.frames, args.warmup, list(args.overrides), args.scale)
-        return {k: 2.0 * v if k.endswith("_us_per_face_step") else v for k, v in row.items()}
+        seen["args"] = (args.scene, args.mode, args.frames, args.warmup)
+        return {**head, "s_per_frame": 0.3, "us_per_face_step": 30.0, "physics_us_per_face_step": 4.0,
+                "collisions_us_per_face_step": 20.0, "collisions_pass_us_per_face_step": 16.0}
 
     monkeypatch.setattr(benchmark, "bench_scene_revision", rev_bench)
+    monkeypatch.setattr(benchmark, "bench_scene", lambda *a, **k: dict(head))
     benchmark.main(["--scene", "layered_sheets", "--frames", "2", "--warmup", "1", "--against", "HEAD",
-                    "--out", str(tmp_path), "scene.scales.small.resolution=6"])
-    assert seen["exported"]
+                    "--out", str(tmp_path)])
+    assert seen["exported"] and seen["args"] == ("layered_sheets", "adaptive", 2, 1)
     row = pd.read_csv(_only_child(tmp_path) / "against.csv").iloc[0]
-    assert row["us_per_face_step_speedup"] > 1.0 and row["collisions_pass_us_per_face_step_speedup"] > 1.0
-    assert row["faces"] == row["faces_rev"]  # the same scene, the same trajectory here
+    assert row["speedup"] == pytest.approx(3.0) and row["physics_speedup"] == pytest.approx(1.0)
+    assert row["collisions_pass_speedup"] == pytest.approx(4.0)
+    assert "collisions_untangle_speedup" not in row.index  # nothing to divide by: not compared
     assert "HEAD / this tree, per face per step" in capsys.readouterr().out
 
 
