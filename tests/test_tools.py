@@ -172,9 +172,12 @@ def test_benchmark_scene_against_a_revision_writes_its_ratios(tmp_path, monkeypa
     """--scene with --against: REV's scene benchmark (its own code in a subprocess, stubbed here) and
     this tree's on the same scene; against.csv holds REV's microseconds per face per step over this
     tree's, per phase and collision part."""
+    from cloth.core.records import COLLISION_PARTS, SIM_PHASES
     from experiments import benchmark
     head = {"scene": "layered_sheets", "mode": "adaptive", "faces_mean": 72.0, "steps_per_frame": 8.0,
             "s_per_frame": 0.1, "scene_steps_per_frame": 8, "steps_per_frame_max": 8, "collision_share": 0.5,
+            **{f"{p}_us_per_face_step": 1.0 for p in SIM_PHASES},
+            **{f"collisions_{p}_us_per_face_step": 1.0 for p in COLLISION_PARTS},
             "us_per_face_step": 10.0, "physics_us_per_face_step": 4.0, "collisions_us_per_face_step": 5.0,
             "collisions_pass_us_per_face_step": 4.0, "collisions_untangle_us_per_face_step": 0.0}
     seen = {}
