@@ -154,13 +154,18 @@ def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, 
     ref = [None, None]  # [face pairs, x1 when they were found]
     obstacle_cache = {}  # the obstacle triangles' tree, built once: their nodes never move in the pass
 
-    def pairs(xa, xb, pad):
+    def pairs(xa, xb, pad, only=None):
+        """The query's pairs; with `only` (nodes flagged), just those of face pairs with a flagged node
+        (a later CCD pass tests nothing else)."""
         fp, x_ref = ref
         if fp is None or not REUSE_BROAD_PHASE or not float(np.max(np.abs(x1 - x_ref), initial=0.0)) <= h - pad:
             boxes = swept_boxes(face_nodes, edge_nodes, x0, x1)
             fp = ref[0] = overlapping_face_pairs(boxes[2], boxes[3], h, n_fixed_faces, self_pairs, obstacle_cache,
                                                  trees)
             ref[1] = x1.copy()
+        if only is not None:
+            flagged = only[face_nodes].any(axis=1)
+            fp = fp[flagged[fp[:, 0]] | flagged[fp[:, 1]]]
         boxes = swept_boxes(face_nodes, edge_nodes, xa, xb)
         return primitive_pairs(fp, face_nodes, face_edges, edge_nodes, boxes, owners, pad, inv_m, first_fixed, skip)
 
@@ -192,7 +197,8 @@ def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, 
         if n == 0:
             return stats
         stats["self_ccd_passes"] = p + 1
-        vf, ee = pairs(x0, x1, eta)
+        # the next CCD pass tests only pairs with a node this one moved; the impact zones, every pair
+        vf, ee = pairs(x0, x1, eta, moved[:N] if p + 1 < int(params.ccd_passes) else None)
         hits = np.empty((vf.shape[0] + ee.shape[0], 4), dtype=np.int64)
     # 3. impact zones: rigid, or projected where they hold obstacle nodes
     parent = np.arange(N)
