@@ -63,21 +63,22 @@ def test_bvh_pairs_equal_brute_force():
             assert len(given) == len(cross) and sorted(map(tuple, given)) == list(map(tuple, cross))
 
 
-@pytest.mark.parametrize("seed", range(3))
-def test_reused_broad_phase_gives_the_pairs_of_a_fresh_one(monkeypatch, seed):
+@pytest.mark.parametrize("seed, ccd_passes, jitter", [(0, 3, 0.3), (1, 3, 0.3), (2, 3, 0.3), (0, 1, 2.0), (1, 1, 2.0)])
+def test_reused_broad_phase_gives_the_pairs_of_a_fresh_one(monkeypatch, seed, ccd_passes, jitter):
     """resolve_self_collisions finds the face pairs once and reuses them while no node has moved
     more than the thickness less the query's pad: the result (positions and record) is bitwise the
-    one of a fresh broad phase at every query, on a step that needs proximity, CCD passes and
-    impact zones (the upper of two sheets pushed down through the lower one, with jitter)."""
+    one of a fresh broad phase at every query, on a step that needs proximity and CCD passes (the
+    upper of two sheets pushed down through the lower one, with jitter of 0.3 thickness), and with
+    one CCD pass only and jitter of 2 thicknesses, impact zones."""
     import cloth.collision.selfcollision as sc
     mesh, n_lower = two_sheets(n=10, gap=0.6 * THICKNESS)
     rng = np.random.default_rng(seed)
     x0 = mesh.node_x.copy()
-    x1 = x0 + rng.normal(scale=0.3 * THICKNESS, size=x0.shape)
+    x1 = x0 + rng.normal(scale=jitter * THICKNESS, size=x0.shape)
     upper = np.arange(n_lower, mesh.n_nodes)
     bump = upper[np.linalg.norm(x0[upper, :2] - x0[upper, :2].mean(axis=0), axis=1) < 0.08]
     x1[bump, 2] -= 0.02  # through the lower sheet
-    params = SelfCollisionParams(THICKNESS)
+    params = SelfCollisionParams(THICKNESS, ccd_passes=ccd_passes)
     runs = []
     for reuse in (True, False):
         monkeypatch.setattr(sc, "REUSE_BROAD_PHASE", reuse)
@@ -86,6 +87,8 @@ def test_reused_broad_phase_gives_the_pairs_of_a_fresh_one(monkeypatch, seed):
                                         mesh.node_pinned, params)
         runs.append((x, stats))
     assert runs[0][1]["self_proximity"] > 0 and runs[0][1]["self_ccd_hits"] > 0
+    if ccd_passes == 1:
+        assert runs[0][1]["impact_zones"] > 0
     assert np.array_equal(runs[0][0], runs[1][0])
     assert runs[0][1] == runs[1][1]
 

@@ -82,9 +82,9 @@ CCD_ETA_FRACTION = 1e-3
 # correction does not start new collisions (the proximity stage of the next step restores the
 # full thickness).
 CCD_SEPARATION_FRACTION = 0.1
-# The pass reuses its broad phase's face pairs while they still hold every query's (see `pairs` in
-# resolve_self_collisions); False finds them afresh at every query (the same result, slower: a test
-# compares the two).
+# The pass reuses its broad phase's face pairs while they still hold every query's, and a later CCD
+# pass takes only those with a node the previous pass moved (see `pairs` in resolve_self_collisions);
+# False finds every query's pairs afresh from all faces (the same result, slower: a test compares the two).
 REUSE_BROAD_PHASE = True
 
 
@@ -163,7 +163,7 @@ def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, 
             fp = ref[0] = overlapping_face_pairs(boxes[2], boxes[3], h, n_fixed_faces, self_pairs, obstacle_cache,
                                                  trees)
             ref[1] = x1.copy()
-        if only is not None:
+        if only is not None and REUSE_BROAD_PHASE:
             flagged = only[face_nodes].any(axis=1)
             fp = fp[flagged[fp[:, 0]] | flagged[fp[:, 1]]]
         boxes = swept_boxes(face_nodes, edge_nodes, xa, xb)
