@@ -124,10 +124,11 @@ def test_a_preset_that_measures_accuracy_against_a_reference_saves_states(experi
 @pytest.mark.parametrize("experiment", EXPERIMENTS)
 def test_repeats_sweep_the_seeds_one_run_at_a_time(experiment):
     """`repeats=N` makes the sweeper run every point with seeds 0 .. N-1 (3 for Table 1 and both
-    buckling ablations, 5 for the anticipation ablation, 1 for the others by default), and the
+    buckling ablations and the cameras and live-camera studies, 5 for the anticipation ablation, 1 for
+    the others by default), and the
     local launcher runs one run at a time."""
     default = {"table1": 3, "ablation_anticipation": 5, "ablation_buckling": 3,
-               "ablation_buckling_dancer": 3, "live_camera": 3}.get(experiment, 1)
+               "ablation_buckling_dancer": 3, "live_camera": 3, "cameras": 3}.get(experiment, 1)
     for extra, n in (((), default), (("repeats=5",), 5)):
         cfg = compose_config(f"+experiment={experiment}", *extra, return_hydra_config=True)
         assert cfg.repeats == n and cfg.hydra.sweeper.params.seed == f"range(0,{n})"
