@@ -15,36 +15,22 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from cloth.collision.bvh import refit
 from cloth.collision.nearest import box_distance2, nearest_triangle
 
 
 @njit(cache=True)
 def refit_tree(x, faces, nlo, nhi, left, start, count, order):
-    """Refit the boxes of a forest of trees to the triangles at positions x (in place).
-
-    Children are stored after their parent (cloth.collision.bvh.build_tree), so one pass in
-    reverse order sees every child before its parent. Returns the summed box extents (growth measure)."""
-    total = 0.0
-    for k in range(nlo.shape[0] - 1, -1, -1):
+    """Refit the boxes of a forest of trees to the triangles at positions x (in place): the
+    triangles' boxes, then cloth.collision.bvh.refit (children are stored after their parent, in
+    every tree of the forest). Returns the summed box extents (growth measure)."""
+    lo = np.empty((faces.shape[0], 3))
+    hi = np.empty((faces.shape[0], 3))
+    for f in range(faces.shape[0]):
         for d in range(3):
-            nlo[k, d] = np.inf
-            nhi[k, d] = -np.inf
-        if left[k] < 0:
-            for a in range(start[k], start[k] + count[k]):
-                f = order[a]
-                for j in range(3):
-                    v = faces[f, j]
-                    for d in range(3):
-                        nlo[k, d] = min(nlo[k, d], x[v, d])
-                        nhi[k, d] = max(nhi[k, d], x[v, d])
-        else:
-            for c in range(left[k], left[k] + 2):
-                for d in range(3):
-                    nlo[k, d] = min(nlo[k, d], nlo[c, d])
-                    nhi[k, d] = max(nhi[k, d], nhi[c, d])
-        for d in range(3):
-            total += nhi[k, d] - nlo[k, d]
-    return total
+            lo[f, d] = min(x[faces[f, 0], d], x[faces[f, 1], d], x[faces[f, 2], d])
+            hi[f, d] = max(x[faces[f, 0], d], x[faces[f, 1], d], x[faces[f, 2], d])
+    return refit(lo, hi, nlo, nhi, left, start, count, order)
 
 
 @njit(cache=True)
