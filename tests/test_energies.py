@@ -200,6 +200,26 @@ def test_degenerate_hinge_exerts_no_force():
     assert np.all(np.isfinite(g)) and np.abs(g).max() == 0 and np.abs(H).max() == 0 and e == 0
 
 
+@pytest.mark.parametrize("project", [False, True, 2])  # 2: membrane.GAUSS_NEWTON
+@pytest.mark.parametrize("squeeze", [1.0, 0.8])
+def test_membrane_batch_matches_single_elements_bitwise(project, squeeze):
+    """membrane_elements computes the plain faces on scalars and sends the filtered and non-PSD ones
+    to stvk_element_into: every path gives the single element's numbers to the bit. `squeeze` 0.8
+    compresses the sheet so that stress is indefinite and half the faces are filtered (alpha 0.3)."""
+    from cloth.core.mesh import grid_mesh
+    mesh = grid_mesh(1.0, 1.0, 4, 4)
+    x = mesh.node_x * squeeze + 0.05 * np.random.default_rng(SEED).standard_normal(mesh.node_x.shape)
+    F = mesh.n_faces
+    alpha = np.where(np.arange(F) % 2 == 0, 1.0, 0.3)
+    e, g, H = np.empty(F), np.empty((F, 9)), np.empty((F, 9, 9))
+    membrane_elements(x, mesh.face_nodes, mesh.face_Dm_inv, mesh.face_area, MU, LAM, project, e, g, H, alpha)
+    for f in range(F):
+        n = mesh.face_nodes[f]
+        ef, gf, Hf = stvk_element(x[n[0]], x[n[1]], x[n[2]], mesh.face_Dm_inv[f], mesh.face_area[f], MU, LAM,
+                                  project, alpha[f])
+        assert e[f] == ef and np.array_equal(g[f], gf) and np.array_equal(H[f], Hf), f
+
+
 def test_batch_kernels_match_single_elements():
     from cloth.core.mesh import grid_mesh
     mesh = grid_mesh(1.0, 1.0, 3, 3)

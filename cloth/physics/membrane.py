@@ -373,7 +373,10 @@ def stvk_element_into(x0, x1, x2, Dm_inv, area, mu, lam, project, grad, hess, al
         for i in range(3):
             Fg[a, i] = F[i, 0] * g[a, 0] + F[i, 1] * g[a, 1]
             grad[3 * a + i] = area * (F[i, 0] * Sg[a, 0] + F[i, 1] * Sg[a, 1])
-    FFt = F @ F.T
+    FFt = np.empty((3, 3))  # F F^T, summed in order (as membrane_elements does; BLAS may fuse)
+    for i in range(3):
+        for j in range(3):
+            FFt[i, j] = F[i, 0] * F[j, 0] + F[i, 1] * F[j, 1]
     clamp = project == GAUSS_NEWTON and not (S00 + S11 >= 0.0 and S00 * S11 - S01 * S01 >= 0.0)
     if clamp:  # the geometric term of S's positive part: the material term is PSD, so is their sum
         l1, l2, q1, q2 = _eig_sym2(S00, S01, S11)
@@ -415,11 +418,84 @@ def membrane_elements(node_x, face_nodes, face_Dm_inv, face_area, mu, lam, proje
     """Energy (F,), gradient (F, 9) and Hessian (F, 9, 9) of every face (each writes its own slot).
 
     `face_alpha` (F,) is each face's compression factor (1: plain StVK; cloth.physics.buckling).
+    The plain StVK face (alpha = 1, or no compressed direction), exact or Gauss-Newton, and the
+    projected one whose stress is positive semi-definite, are computed here on scalars, with no
+    array made per face (the formulas of :func:`stvk_element_into`, term for term: the same to
+    round-off); a filtered face, and a projected one whose stress is not PSD, go through
+    :func:`stvk_element_into`.
     """
+    other = np.zeros(face_nodes.shape[0], dtype=np.bool_)  # faces for stvk_element_into, after the loop
     for f in prange(face_nodes.shape[0]):
-        out_energy[f] = stvk_element_into(
-            node_x[face_nodes[f, 0]], node_x[face_nodes[f, 1]], node_x[face_nodes[f, 2]],
-            face_Dm_inv[f], face_area[f], mu, lam, project, out_grad[f], out_hess[f], face_alpha[f])
+        a, b, c = face_nodes[f, 0], face_nodes[f, 1], face_nodes[f, 2]
+        B00, B01 = face_Dm_inv[f, 0, 0], face_Dm_inv[f, 0, 1]
+        B10, B11 = face_Dm_inv[f, 1, 0], face_Dm_inv[f, 1, 1]
+        # F = [x1 - x0, x2 - x0] Dm^-1 (deformation_gradient), rows i
+        d1, d2 = node_x[b, 0] - node_x[a, 0], node_x[c, 0] - node_x[a, 0]
+        F00, F01 = d1 * B00 + d2 * B10, d1 * B01 + d2 * B11
+        d1, d2 = node_x[b, 1] - node_x[a, 1], node_x[c, 1] - node_x[a, 1]
+        F10, F11 = d1 * B00 + d2 * B10, d1 * B01 + d2 * B11
+        d1, d2 = node_x[b, 2] - node_x[a, 2], node_x[c, 2] - node_x[a, 2]
+        F20, F21 = d1 * B00 + d2 * B10, d1 * B01 + d2 * B11
+        # E = 1/2 (F^T F - I) (green_strain)
+        E00 = 0.5 * ((F00 * F00 + F10 * F10 + F20 * F20) - 1.0)
+        E01 = 0.5 * ((F00 * F01 + F10 * F11 + F20 * F21) - 0.0)
+        E11 = 0.5 * ((F01 * F01 + F11 * F11 + F21 * F21) - 1.0)
+        area, alpha = face_area[f], face_alpha[f]
+        trE = E00 + E11
+        S00 = 2.0 * mu * E00 + lam * trE
+        S11 = 2.0 * mu * E11 + lam * trE
+        S01 = 2.0 * mu * E01
+        psd = S00 + S11 >= 0.0 and S00 * S11 - S01 * S01 >= 0.0
+        filtered = alpha < 1.0 and (E00 + E11 < 0.0 or E00 * E11 - E01 * E01 < 0.0)
+        if filtered or (project and project != GAUSS_NEWTON and not psd):
+            other[f] = True  # (a call here, in the loop, would slow every face down)
+            continue
+        out_energy[f] = area * (mu * (E00 ** 2 + 2.0 * E01 ** 2 + E11 ** 2) + 0.5 * lam * trE * trE)
+        g = ((-B00 - B10, -B01 - B11), (B00, B01), (B10, B11))  # rows g_a
+        Fm = ((F00, F01), (F10, F11), (F20, F21))
+        for k in range(3):
+            sg0 = S00 * g[k][0] + S01 * g[k][1]
+            sg1 = S01 * g[k][0] + S11 * g[k][1]
+            for i in range(3):
+                out_grad[f, 3 * k + i] = area * (Fm[i][0] * sg0 + Fm[i][1] * sg1)
+        P00, P01, P11 = S00, S01, S11
+        if project == GAUSS_NEWTON and not psd:  # the stress's positive part in the geometric term
+            m = 0.5 * (S00 + S11)
+            r = np.sqrt(0.25 * (S00 - S11) * (S00 - S11) + S01 * S01)
+            l1, l2 = max(m + r, 0.0), max(m - r, 0.0)
+            if r == 0.0:  # (_eig_sym2's eigenvector, its formulas)
+                q0, q1 = 1.0, 0.0
+            elif S00 >= S11:
+                q0, q1 = S00 - (m - r), S01
+            else:
+                q0, q1 = S01, S11 - (m - r)
+            n = np.sqrt(q0 * q0 + q1 * q1)
+            q0, q1 = q0 / n, q1 / n
+            p0, p1 = -q1, q0
+            P00 = l1 * q0 * q0 + l2 * p0 * p0
+            P01 = l1 * q0 * q1 + l2 * p0 * p1
+            P11 = l1 * q1 * q1 + l2 * p1 * p1
+        for k in range(3):
+            for j in range(3):
+                gSg = g[k][0] * (P00 * g[j][0] + P01 * g[j][1]) + g[k][1] * (P01 * g[j][0] + P11 * g[j][1])
+                gg = g[k][0] * g[j][0] + g[k][1] * g[j][1]
+                for i in range(3):
+                    Fgk_i = Fm[i][0] * g[k][0] + Fm[i][1] * g[k][1]
+                    Fgj_i = Fm[i][0] * g[j][0] + Fm[i][1] * g[j][1]
+                    for q in range(3):
+                        Fgk_q = Fm[q][0] * g[k][0] + Fm[q][1] * g[k][1]
+                        Fgj_q = Fm[q][0] * g[j][0] + Fm[q][1] * g[j][1]
+                        FFt = Fm[i][0] * Fm[q][0] + Fm[i][1] * Fm[q][1]
+                        h = mu * Fgj_i * Fgk_q + mu * gg * FFt + lam * Fgk_i * Fgj_q
+                        if i == q:
+                            h += gSg
+                        out_hess[f, 3 * k + i, 3 * j + q] = area * h
+    rest = np.flatnonzero(other)
+    for r in prange(rest.shape[0]):
+        f = rest[r]
+        a, b, c = face_nodes[f, 0], face_nodes[f, 1], face_nodes[f, 2]
+        out_energy[f] = stvk_element_into(node_x[a], node_x[b], node_x[c], face_Dm_inv[f], face_area[f], mu, lam,
+                                          project, out_grad[f], out_hess[f], face_alpha[f])
 
 
 @njit(cache=True)
