@@ -86,6 +86,11 @@ CCD_SEPARATION_FRACTION = 0.1
 # pass takes only those with a node the previous pass moved (see `pairs` in resolve_self_collisions);
 # False finds every query's pairs afresh from all faces (the same result, slower: a test compares the two).
 REUSE_BROAD_PHASE = True
+# An impact-zone round after the first tests only the pairs with a node the previous round moved
+# or hit (see the zone loop in resolve_self_collisions); False tests every pair in every round
+# (the same hits in the same order, slower: a test compares the two). On a karate frame whose
+# zones grow to 250 nodes over 11-15 rounds per step, the collision pass is 1.17x faster.
+ZONE_ROUNDS_MOVED_ONLY = True
 
 
 NO_IMPACTS = np.zeros((0, 7))  # ccd_pass without the hits' weights and normals
@@ -215,6 +220,7 @@ def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, 
             count("self_collisions_left", "obstacle_collisions_left", hits, n)
             break
         stats["impact_zone_rounds"] = r + 1
+        x_round = x1.copy()
         zones = merge_zones(parent, in_zone, hits[:n])
         stats["impact_zones"] = len(zones)
         if n_fixed_faces:
@@ -234,7 +240,13 @@ def resolve_self_collisions(face_nodes, face_edges, edge_nodes, x0, x1, node_m, 
                                      PROJECTION_SWEEPS, PROJECTION_TOLERANCE)
             else:
                 rigid_motion(x0, x1, node_m, pinned, zone)
-        vf, ee = pairs(x0, x1, eta)
+        # The next round tests only the pairs with a node this round moved (its end position
+        # changed in any bit) or with a node of this round's hits: every other pair has the
+        # motion it had when a round last tested it and found it free (a non-responding pass
+        # tests each pair on its own), so the hits, in the same order, are those of every pair.
+        changed = np.any(x1 != x_round, axis=1)
+        changed[hits[:n].reshape(-1)] = True
+        vf, ee = pairs(x0, x1, eta, changed if ZONE_ROUNDS_MOVED_ONLY else None)
         hits = np.empty((vf.shape[0] + ee.shape[0], 4), dtype=np.int64)
     return stats
 
