@@ -484,3 +484,39 @@ def test_zone_rounds_on_moved_pairs_give_the_hits_of_every_pair(monkeypatch, see
     assert runs[0][1]["impact_zone_rounds"] >= 3  # rounds after the first, where the filter acts
     assert np.array_equal(runs[0][0], runs[1][0])
     assert runs[0][1] == runs[1][1]
+
+
+def _edge_pair_hits(x0, x1, eta):
+    """ccd_pass on one edge-edge pair (edges 0-1 and 2-3), without response: its hit count."""
+    edge_nodes = np.array([[0, 1], [2, 3]], dtype=np.int64)
+    face_nodes = np.zeros((0, 3), dtype=np.int64)
+    hits = np.empty((1, 4), dtype=np.int64)
+    return ccd_pass(np.zeros((0, 2), dtype=np.int64), np.array([[0, 1]], dtype=np.int64), face_nodes, edge_nodes,
+                    x0, x1, np.ones(4), eta, 0.0, False, hits, np.zeros(5, dtype=bool), np.zeros((0, 7)))
+
+
+@pytest.mark.parametrize("gap_in_eta, motion, hit", [
+    (0.4, "together", False),  # within eta at the start, moved rigidly: the step closes nothing
+    (0.4, "apart", False),
+    (0.4, "through", True),  # crossing passes through distance 0
+    (0.4, "closer", True),  # from 0.4 eta to 0.1 eta: closed past START_TOUCH_FRACTION
+    (0.0, "together", True),  # touching exactly at the start: still a hit
+    (3.0, "closer", True),  # from 3 eta to 0.1 eta: an ordinary touch
+])
+def test_a_pair_touching_at_the_start_is_a_hit_only_if_the_step_closes_it(gap_in_eta, motion, hit):
+    """Two crossed edges gap_in_eta * eta apart at x0 (the second above the first): a pair within eta
+    at the start is a CCD hit only if the step brings it within START_TOUCH_FRACTION of its starting
+    distance (a rigid impact zone holding it apart otherwise stays a hit in every round)."""
+    from cloth.collision.response import START_TOUCH_FRACTION
+    eta = 1e-5
+    z = gap_in_eta * eta
+    x0 = np.array([[-1.0, 0, 0], [1.0, 0, 0], [0, -1.0, z], [0, 1.0, z]]) * [0.01, 0.01, 1]
+    x1 = x0 + [0.002, 0.001, 0.0]  # both edges carried alike
+    if motion == "apart":
+        x1[2:, 2] += 5 * eta
+    elif motion == "through":
+        x1[2:, 2] -= 5 * eta
+    elif motion == "closer":
+        x1[2:, 2] = 0.1 * eta
+    assert START_TOUCH_FRACTION * 0.4 > 0.1  # "closer" closes past the fraction
+    assert (_edge_pair_hits(x0, x1, eta) == 1) is hit
