@@ -314,7 +314,8 @@ def main(argv=None) -> None:
     out = args.out / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     out.mkdir(parents=True, exist_ok=True)
     code = code_version()
-    header = (f"Stability suite, scale={args.scale}, seeds 0-{args.seeds - 1}, commit {code['git_commit']}"
+    # the code that wrote the report; the code each run ran is its row's commit (a resumed row keeps its own)
+    header = (f"Stability suite, scale={args.scale}, seeds 0-{args.seeds - 1}, written at commit {code['git_commit']}"
               f"{' (with uncommitted changes)' if code['git_dirty'] else ''}, {datetime.now():%Y-%m-%d}: "
               f"`python -m experiments.stability {' '.join(argv if argv is not None else sys.argv[1:])}`\n\n")
     commit = code["git_commit"] + ("+dirty" if code["git_dirty"] else "")
@@ -392,6 +393,8 @@ def report(header: str, table: pd.DataFrame, runs_planned: int) -> str:
     commits = sorted(set(table["commit"])) if "commit" in table else []
     if len(commits) > 1:  # a resumed suite: say which runs are of which code
         done += f"Runs of {len(commits)} commits (column commit): {', '.join(commits)}.\n\n"
+    elif commits:  # resumed rows may all be of code other than the code that wrote the report
+        done += f"Every run at commit {commits[0]}.\n\n"
     checks = ("A run passes when it reaches its last frame with every value finite, the kinetic energy "
               "within the case's bound, no intersection left after untangling or collisions, no crossing "
               "face pair at the end where the scene declares self_collision, and no face below "

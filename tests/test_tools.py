@@ -85,6 +85,8 @@ def test_stability_tool_writes_csv_and_markdown(tmp_path):
     tmp_path = tmp_path / "out"
     text = report.read_text()
     assert "commit" in text and "## Per case and seed" in text and "Partial" not in text
+    ran = pd.read_csv(report.with_suffix(".csv"))["commit"].iloc[0]
+    assert f"Every run at commit {ran}." in text  # the code the runs ran, not only the code that wrote it
     out = _only_child(tmp_path)
     table = pd.read_csv(out / "table.csv")
     assert list(table["case"]) == ["one_frame_step"] * 2 and list(table["seed"]) == [0, 1] and table["ok"].all()
