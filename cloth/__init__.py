@@ -38,6 +38,7 @@ _EXPORTS = {
     "ObstacleSet": "cloth.collision.obstacles", "Plane": "cloth.collision.obstacles",
     "Sphere": "cloth.collision.obstacles", "Capsule": "cloth.collision.obstacles",
     "TriangleMeshObstacle": "cloth.collision.meshobstacle", "SelfCollisionParams": "cloth.collision.selfcollision",
+    "CollisionOptions": "cloth.collision.selfcollision",
     "Mannequin": "cloth.scenes.character", "build_scene": "cloth.scenes.registry",
     "Simulation": "cloth.simulation", "SimulationDiverged": "cloth.stepcontrol",
     "run": "cloth.runner", "Recorder": "cloth.io.recorder",

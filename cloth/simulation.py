@@ -50,6 +50,7 @@ namespace when they are called, so that a test can replace them here.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -58,6 +59,7 @@ from cloth.collision.contact import resolve_obstacle_contacts
 from cloth.collision.meshobstacle import mesh_obstacle_triangles, mesh_obstacles
 from cloth.collision.obstacles import ObstacleSet
 from cloth.collision.selfcollision import (
+    CollisionOptions,
     SelfCollisionParams,
     resolve_collisions_with_obstacles,
     resolve_self_collisions,
@@ -123,9 +125,11 @@ class Simulation(StepControl, Restart, FrameRecord):
     cloth.framerecord)."""
 
     def __init__(self, scene: Scene, solver: SolverOptions | None = None,
-                 remesher: Remesher | None = None, max_speed: float = 100.0, buckling=None):
+                 remesher: Remesher | None = None, max_speed: float = 100.0, buckling=None,
+                 collision: CollisionOptions | None = None):
         """`buckling` (cloth.physics.buckling.BucklingParams or None): buckling compensation on the
-        faces outside the camera's frustum; needs `scene.camera` (a cloth.view.paths.CameraPath)."""
+        faces outside the camera's frustum; needs `scene.camera` (a cloth.view.paths.CameraPath).
+        `collision`: the collision pass's passes and rounds (None: CollisionOptions' defaults)."""
         if not max_speed > 0:
             raise ValueError(f"max_speed must be > 0, got {max_speed}")
         if buckling is not None and scene.camera is None:
@@ -143,12 +147,14 @@ class Simulation(StepControl, Restart, FrameRecord):
         self.contact = resolve_obstacle_contacts if self.stages.obstacle_contact else None
         self.obstacle_set = ObstacleSet(scene.obstacles) if self.stages.obstacle_contact else None
         self.mesh_obstacles = mesh_obstacles(scene.obstacles) if self.stages.obstacle_contact else []
+        self.collision = collision or CollisionOptions()
+        passes = dataclasses.asdict(self.collision)
         self_friction = scene.friction if scene.self_friction is None else scene.self_friction
         self.self_collision = (SelfCollisionParams(thickness=scene.thickness, friction=self_friction,
-                                                   self_thickness=scene.self_thickness)
+                                                   self_thickness=scene.self_thickness, **passes)
                                if self.stages.self_collision else None)
         self.mesh_collision = (self.self_collision or SelfCollisionParams(thickness=scene.thickness,
-                                                                          friction=scene.friction)
+                                                                          friction=scene.friction, **passes)
                                if self.stages.obstacle_ccd else None)
         self._inside_at_start = None  # free nodes inside an obstacle at the step's start (obstacle_ccd skips them)
         self._collision_trees = {}  # the mesh obstacles' broad-phase tree, refitted from pass to pass (not saved)

@@ -19,6 +19,7 @@ import sys
 
 from omegaconf import DictConfig, OmegaConf
 
+from cloth.collision.selfcollision import CollisionOptions
 from cloth.core.material import Material, MaterialError
 from cloth.core.mesh import MeshError
 from cloth.core.scene import SceneError
@@ -320,6 +321,11 @@ def build(cfg: DictConfig, character: int | None = None) -> Built:
         params["character"] = int(character or 0)
     material = build_material(cfg)
     solver = _params(SolverOptions, OmegaConf.to_container(cfg.solver, resolve=True), "solver")
+    collision = cfg.get("collision")
+    _require(isinstance(collision, DictConfig), "collision",
+             f"must be a mapping of {', '.join(f.name for f in dataclasses.fields(CollisionOptions))}, "
+             f"got {_plain(collision)!r}")
+    collision = _params(CollisionOptions, OmegaConf.to_container(collision, resolve=True), "collision")
     camera = build_camera(cfg)
     _require(cfg.output.get("stills_every", 0) == 0 or camera is not None, "output.stills_every",
              "stills are drawn from the camera: choose one with camera=<name> (conf/camera/)")
@@ -337,7 +343,8 @@ def build(cfg: DictConfig, character: int | None = None) -> Built:
                 if mode in REMESHING_MODES else None)
     if remesher is not None and not pop_filter:
         remesher.pop = None
-    sim = Simulation(scene, solver=solver, remesher=remesher, max_speed=max_speed, buckling=buckling)
+    sim = Simulation(scene, solver=solver, remesher=remesher, max_speed=max_speed, buckling=buckling,
+                     collision=collision)
     return Built(sim=sim, frames=int(n_frames), scene_params=params)
 
 

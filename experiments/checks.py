@@ -147,8 +147,8 @@ MODE_KEYS = {"nonadaptive": {"name", "buckling"},
 # The top-level keys a run reads or records (conf/config.yaml, its groups, and what the study
 # presets of conf/experiment and conf/point set: `points`, `baseline`); any other is refused,
 # never silently ignored (`+foo=1`, a key mistyped with a `+`).
-TOP_LEVEL_KEYS = frozenset({"camera", "cameras", "scene", "mode", "material", "solver", "output", "frames", "seed",
-                            "repeats", "scale", "resolution_factor", "crowd_jobs", "crowd_backend", "max_speed",
+TOP_LEVEL_KEYS = frozenset({"camera", "cameras", "scene", "mode", "material", "solver", "collision", "output", "frames",
+                            "seed", "repeats", "scale", "resolution_factor", "crowd_jobs", "crowd_backend", "max_speed",
                             "study", "reference", "reference_member", "reference_check", "variant", "drape_mesh",
                             "points", "baseline", "baseline_factor"})
 # The keys of a scene (conf/scene/*.yaml): the others are refused.

@@ -60,6 +60,7 @@ def resolved_record(built: Built) -> dict:
                   "camera": None if scene.camera is None else type(scene.camera).__name__},
         "material": {"kind": type(scene.material).__name__, **_record_value(scene.material)},
         "solver": _record_value(sim.solver),
+        "collision": _record_value(sim.collision),
         "remesher": remesh,
         "buckling": _record_value(sim.buckling),
     }

@@ -58,6 +58,11 @@ BAD = [
     (("+scene.params.resolution=10", "scene.scales.small.resolution=12"), "scene.scales.small.resolution"),
     # top level
     (("+foo=1",), "foo"),
+    (("collision.ccd_passes=abc",), "collision.ccd_passes"),
+    (("collision.ccd_passes=-1",), "collision.ccd_passes"),
+    (("collision.max_zone_passes=2.5",), "collision.max_zone_passes"),
+    (("+collision.zone_rounds=4",), "collision.zone_rounds"),
+    (("collision=3",), "collision"),
     (("+max_sped=10",), "max_sped"),
     (("+scene.framez=10",), "scene.framez"),
     (("max_speed=-1",), "max_speed"),
@@ -230,13 +235,16 @@ def _same(recorded, obj, where=""):
 
 def test_resolved_yaml_records_the_built_objects(tmp_path):
     out = tmp_path / "run"
-    run_config(out, *QUIET, *VIEW, "scene=hanging_sheet", "frames=1", "mode.sizing.refine_angle=0.4")
+    run_config(out, *QUIET, *VIEW, "scene=hanging_sheet", "frames=1", "mode.sizing.refine_angle=0.4",
+               "collision.ccd_passes=7")
     rec = yaml.safe_load((out / RESOLVED).read_text())
     built = build(OmegaConf.load(out / "config.yaml"))
     sim = built.sim
     assert rec["frames"] == built.frames == 1 and rec["max_speed"] == sim.max_speed
     _same(rec["solver"], sim.solver, "solver")
     _same(rec["buckling"], sim.buckling, "buckling")
+    _same(rec["collision"], sim.collision, "collision")
+    assert rec["collision"]["ccd_passes"] == 7
     _same({k: v for k, v in rec["material"].items() if k != "kind"}, sim.scene.material, "material")
     for key, obj in (("sizing", sim.remesher.sizing), ("remesh", sim.remesher.params),
                      ("pop_filter", sim.remesher.pop), ("view", sim.remesher.view)):
@@ -251,6 +259,12 @@ def test_resolved_yaml_records_the_built_objects(tmp_path):
     assert scene["faces"] == sim.mesh.n_faces
     assert scene["params"]["resolution"] == built.scene_params["resolution"] == preset.resolution
     assert rec == resolved_record(built)
+
+
+def test_collision_options_reach_the_collision_pass():
+    sim = build(compose_config("scene=layered_sheets", "collision.ccd_passes=7", "collision.max_zone_passes=5")).sim
+    params = sim.self_collision
+    assert (params.ccd_passes, params.max_zone_passes, params.proximity_passes) == (7, 5, 2)
 
 
 def test_resolution_factor_is_recorded_as_the_resolution_that_ran():

@@ -97,12 +97,11 @@ NO_IMPACTS = np.zeros((0, 7))  # ccd_pass without the hits' weights and normals
 
 
 @dataclass(frozen=True)
-class SelfCollisionParams:
-    thickness: float  # m, distance kept between cloth surfaces (and from obstacles)
-    friction: float = 0.3  # Coulomb coefficient, cloth against cloth
-    # m kept between two cloth primitives where it differs from `thickness` (at most `thickness`:
-    # the broad phase pads by it; obstacle pairs keep `thickness`); None: `thickness`
-    self_thickness: float | None = None
+class CollisionOptions:
+    """How hard the collision pass works, the same for every scene (a run's `collision` config):
+    the Gauss-Seidel passes of each stage and the impact-zone rounds before it gives up. The
+    distances and friction are the scene's (SelfCollisionParams takes both)."""
+
     proximity_passes: int = 2  # Gauss-Seidel passes of the repulsion
     ccd_passes: int = 3  # Gauss-Seidel CCD passes before rigid impact zones
     # impact-zone rounds before giving up (the record says what is left). Rounds run only while
@@ -110,6 +109,25 @@ class SelfCollisionParams:
     # element-Hessian projection), 12 rounds left 7 pairs in one frame of karate_2x and 24 left
     # one in one_frame_step; with 48 neither leaves any.
     max_zone_passes: int = 48
+
+    def __post_init__(self):
+        for name in ("proximity_passes", "ccd_passes", "max_zone_passes"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or int(v) != v or v < 0:
+                raise ValueError(f"collision.{name} must be an integer >= 0, got {v!r}")
+
+
+@dataclass(frozen=True)
+class SelfCollisionParams:
+    thickness: float  # m, distance kept between cloth surfaces (and from obstacles)
+    friction: float = 0.3  # Coulomb coefficient, cloth against cloth
+    # m kept between two cloth primitives where it differs from `thickness` (at most `thickness`:
+    # the broad phase pads by it; obstacle pairs keep `thickness`); None: `thickness`
+    self_thickness: float | None = None
+    # the passes and rounds of each stage: CollisionOptions (its defaults)
+    proximity_passes: int = CollisionOptions.proximity_passes
+    ccd_passes: int = CollisionOptions.ccd_passes
+    max_zone_passes: int = CollisionOptions.max_zone_passes
 
     def __post_init__(self):
         if not self.thickness > 0:
