@@ -3,6 +3,7 @@ clamp, and the velocity, compression, curvature and obstacle criteria on hand-co
 
 
 import numpy as np
+import pytest
 
 from cloth.core.mesh import grid_mesh
 from cloth.remeshing.sizing import (
@@ -103,3 +104,45 @@ def test_face_to_vert_transfer_is_area_weighted():
     vM = face_to_vert_sizing(mesh, face_M)
     shared = np.intersect1d(mesh.face_verts[0], mesh.face_verts[1])
     np.testing.assert_allclose(vM[shared], np.tile(2 * np.eye(2), (2, 1, 1)))
+
+
+# The fused kernel and the criterion-by-criterion definition sum in other orders (einsum, BLAS,
+# numpy's vectorised arccos): round-off of 1e-16 relative, amplified where a criterion is
+# ill-conditioned (the arccos of a nearly flat hinge, a signed square root near 0), up to about
+# 1e-12 on these meshes; 1e-9 of each face's largest entry still catches any wrong term.
+FUSED_SIZING_RTOL = 1e-9
+
+
+def _crumpled_sheet_over_a_sphere(seed):
+    from cloth.collision.obstacles import ObstacleSet, Sphere
+
+    rng = np.random.default_rng(seed)
+    mesh = grid_mesh(1.0, 1.0, 12, 12)
+    x = mesh.node_x
+    x[:, 2] = 0.55 + 0.05 * np.sin(6 * x[:, 0]) * np.cos(5 * x[:, 1])  # bent: curvature everywhere
+    x[:, :2] *= 0.95  # compressed: the compression criterion acts
+    x += 0.01 * rng.standard_normal(x.shape)
+    mesh.node_v[:] = rng.standard_normal(mesh.node_v.shape)
+    obstacles = ObstacleSet([Sphere(center=(0.5, 0.5, 0.0), radius=0.548)])  # near a patch of nodes
+    obstacles.set_time(0.0)
+    return mesh, obstacles
+
+
+@pytest.mark.parametrize("combine", ["max", "sum"])
+@pytest.mark.parametrize("with_obstacles", [False, True])
+def test_fused_physics_sizing_equals_the_criteria_combined(combine, with_obstacles):
+    from cloth.remeshing.sizing import SizingParams, physics_face_sizing, physics_face_sizing_reference
+
+    mesh, obstacles = _crumpled_sheet_over_a_sphere(1)
+    params = SizingParams(combine=combine, obstacle_distance=0.05)
+    obs = obstacles if with_obstacles else None
+    if with_obstacles:  # the obstacle criterion is exercised: some nodes are within its distance
+        phi = obstacles.query(mesh.node_x)[0]
+        assert 5 < np.count_nonzero((phi > 0) & (phi < 0.05)) < mesh.n_nodes
+    ref = physics_face_sizing_reference(mesh, params, obs)
+    fused = physics_face_sizing(mesh, params, obs)
+    scale = np.abs(ref).max(axis=(1, 2))
+    assert np.all(np.abs(fused - ref).max(axis=(1, 2)) <= FUSED_SIZING_RTOL * scale)
+    # the clamp acts (size_min and the aspect bound), so the test covers it too
+    w = np.linalg.eigvalsh(ref)
+    assert np.isclose(w.max(), 1 / params.size_min**2) and np.isclose((w[:, 0] / w[:, 1]).min(), params.aspect_min**2)

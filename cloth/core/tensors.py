@@ -1,13 +1,15 @@
 """Small helpers on stacks of symmetric tensors (sizing metrics and the like).
 
-Imports numpy only.
+Imports numpy, and numba for the scalar kernel :func:`eig2x2`.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
+from numba import njit
 
 
 def eig_apply(M: np.ndarray, fn: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
@@ -47,3 +49,22 @@ def _eig_apply_2x2(M: np.ndarray, fn: Callable[[np.ndarray], np.ndarray]) -> np.
     out[:, 1, 1] = lo * cs * cs + hi * sn * sn
     out[:, 0, 1] = out[:, 1, 0] = (hi - lo) * cs * sn
     return out
+
+
+@njit(cache=True)
+def eig2x2(a, b, c):
+    """Closed-form eigen-system of the symmetric [[a, b], [b, c]] in scalars, for kernels (the
+    same as _eig_apply_2x2's): (lo, hi, cs, sn), (cs, sn) the unit eigenvector of hi, (-sn, cs) of lo."""
+    m = 0.5 * (a + c)
+    r = math.hypot(0.5 * (a - c), b)
+    hi = m + r
+    v1x, v1y = hi - c, b
+    v2x, v2y = b, hi - a
+    n1, n2 = math.hypot(v1x, v1y), math.hypot(v2x, v2y)
+    if n1 >= n2:
+        vx, vy, n = v1x, v1y, n1
+    else:
+        vx, vy, n = v2x, v2y, n2
+    if n == 0.0:
+        vx, vy, n = 1.0, 0.0, 1.0
+    return m - r, hi, vx / n, vy / n

@@ -23,7 +23,7 @@ import numba as nb
 import numpy as np
 
 from cloth.core.mesh import Mesh
-from cloth.core.tensors import eig_apply
+from cloth.core.tensors import eig2x2, eig_apply
 from cloth.physics.membrane import face_green_strain
 
 
@@ -187,8 +187,8 @@ def _encloses(cx, cy, r, dx, dy, dr):
 
 
 @nb.njit(cache=True)
-def _encloses_all(px, py, r, cx, cy, rr):
-    for k in range(cx.shape[0]):
+def _encloses_all(px, py, r, cx, cy, rr, K):
+    for k in range(K):
         if not _encloses(px, py, r, cx[k], cy[k], rr[k]):
             return False
     return True
@@ -203,19 +203,36 @@ def _tensor_max_one(Ms, out):
     two or three tangent disks; K is small).
     """
     K = Ms.shape[0]
-    cx = np.empty(K)
-    cy = np.empty(K)
-    rr = np.empty(K)
+    _tensor_max_into(Ms, out, np.empty(K), np.empty(K), np.empty(K), np.empty(2))
+
+
+@nb.njit(cache=True)
+def _tensor_max_into(Ms, out, cx, cy, rr, roots):
+    """_tensor_max_one with its scratch arrays given (cx, cy, rr of length K, roots of 2)."""
+    K = Ms.shape[0]
     for k in range(K):
         cx[k] = 0.5 * (Ms[k, 0, 0] - Ms[k, 1, 1])
         cy[k] = 0.5 * (Ms[k, 0, 1] + Ms[k, 1, 0])
         rr[k] = 0.5 * (Ms[k, 0, 0] + Ms[k, 1, 1])
+    best_r, bx, by = _disk_max(cx, cy, rr, K, roots)
+    out[0, 0] = best_r + bx
+    out[1, 1] = best_r - bx
+    out[0, 1] = by
+    out[1, 0] = by
+
+
+@nb.njit(cache=True)
+def _disk_max(cx, cy, rr, K, roots):
+    """The smallest disk (radius, centre x, centre y) enclosing the first K disks (cx, cy, rr)."""
     best_r = np.inf
     bx = 0.0
     by = 0.0
+    # Any enclosing disk contains each disk, and the smallest one is unique: so a disk of the set
+    # that encloses all is the answer, and so is the first two-disk candidate that encloses all
+    # (the smallest disk enclosing those two); only then are three-disk candidates needed.
     for i in range(K):  # one disk
-        if rr[i] < best_r and _encloses_all(cx[i], cy[i], rr[i], cx, cy, rr):
-            best_r, bx, by = rr[i], cx[i], cy[i]
+        if _encloses_all(cx[i], cy[i], rr[i], cx, cy, rr, K):
+            return rr[i], cx[i], cy[i]
     for i in range(K):  # two disks tangent inside
         for j in range(i + 1, K):
             d = math.sqrt((cx[j] - cx[i]) ** 2 + (cy[j] - cy[i]) ** 2)
@@ -225,10 +242,10 @@ def _tensor_max_one(Ms, out):
             t = (r - rr[i]) / d
             px = cx[i] + t * (cx[j] - cx[i])
             py = cy[i] + t * (cy[j] - cy[i])
-            if r >= best_r:
-                continue
-            if _encloses_all(px, py, r, cx, cy, rr):
+            if r < best_r and _encloses_all(px, py, r, cx, cy, rr, K):
                 best_r, bx, by = r, px, py
+    if best_r < np.inf:
+        return best_r, bx, by
     for i in range(K):  # three disks tangent inside: |c - c_k| = R - r_k
         for j in range(i + 1, K):
             for l in range(j + 1, K):
@@ -251,7 +268,6 @@ def _tensor_max_one(Ms, out):
                 qa = Qx * Qx + Qy * Qy - 1.0
                 qb = 2.0 * (ux * Qx + uy * Qy) + 2.0 * rr[i]
                 qc = ux * ux + uy * uy - rr[i] ** 2
-                roots = np.empty(2)
                 nr = 0
                 if abs(qa) < 1e-14:
                     if qb != 0.0:
@@ -270,12 +286,9 @@ def _tensor_max_one(Ms, out):
                     if R < max(rr[i], rr[j], rr[l]) or R >= best_r:
                         continue
                     px, py = Px + Qx * R, Py + Qy * R
-                    if _encloses_all(px, py, R, cx, cy, rr):
+                    if _encloses_all(px, py, R, cx, cy, rr, K):
                         best_r, bx, by = R, px, py
-    out[0, 0] = best_r + bx
-    out[1, 1] = best_r - bx
-    out[0, 1] = by
-    out[1, 0] = by
+    return best_r, bx, by
 
 
 @nb.njit(cache=True)
@@ -317,11 +330,9 @@ def combine_sizing(Ms: list[np.ndarray], params: SizingParams) -> np.ndarray:
     return clamp_sizing(M, params.size_min, params.size_max, params.aspect_min)
 
 
-def physics_face_sizing(mesh: Mesh, params: SizingParams, obstacles=None) -> np.ndarray:
-    """The view-independent sizing field of ARCSim, per face (F, 2, 2) in 1/m^2.
-
-    `obstacles` is a cloth.collision.obstacles.ObstacleSet placed at the current time, or None.
-    """
+def physics_face_sizing_reference(mesh: Mesh, params: SizingParams, obstacles=None) -> np.ndarray:
+    """:func:`physics_face_sizing` criterion by criterion, with the functions above (the
+    definition the fused kernel is tested against)."""
     Ms = [curvature_sizing(mesh, params.refine_angle),
           velocity_sizing(mesh, params.refine_velocity),
           compression_sizing(mesh, params.refine_compression)]
@@ -329,6 +340,199 @@ def physics_face_sizing(mesh: Mesh, params: SizingParams, obstacles=None) -> np.
         phi, normal, _ = obstacles.query(mesh.node_x)
         Ms.append(obstacle_sizing(mesh, phi, normal, params.obstacle_distance))
     return combine_sizing(Ms, params)
+
+
+def physics_face_sizing(mesh: Mesh, params: SizingParams, obstacles=None) -> np.ndarray:
+    """The view-independent sizing field of ARCSim, per face (F, 2, 2) in 1/m^2.
+
+    `obstacles` is a cloth.collision.obstacles.ObstacleSet placed at the current time, or None.
+    The criteria, their tensor maximum (or sum) and the clamp of :func:`combine_sizing`, fused
+    in one pass over the faces (:func:`_physics_sizing_faces`); the same field as
+    :func:`physics_face_sizing_reference` to round-off.
+    """
+    fn = np.ascontiguousarray(mesh.face_nodes, dtype=np.int64)
+    x = np.ascontiguousarray(mesh.node_x, dtype=np.float64)
+    with_obstacles = obstacles is not None and params.obstacle_distance > 0
+    if with_obstacles:
+        phi, normal, _ = obstacles.query(mesh.node_x)
+        phi = np.ascontiguousarray(phi, dtype=np.float64)
+        normal = np.ascontiguousarray(normal, dtype=np.float64)
+    else:
+        phi, normal = np.empty(0), np.empty((0, 3))
+    face_n, node_n = _face_and_node_normals(x, fn, mesh.n_nodes)
+    theta = _dihedral_from_normals(face_n, np.ascontiguousarray(mesh.edge_faces, dtype=np.int64))
+    out = np.empty((mesh.n_faces, 2, 2))
+    _physics_sizing_faces(x, np.ascontiguousarray(mesh.node_v, dtype=np.float64), fn,
+                          np.ascontiguousarray(mesh.face_verts, dtype=np.int64),
+                          np.ascontiguousarray(mesh.face_edges, dtype=np.int64),
+                          np.ascontiguousarray(mesh.vert_u, dtype=np.float64), mesh.face_area, mesh.face_Dm_inv,
+                          theta, node_n, phi, normal, with_obstacles, float(params.obstacle_distance),
+                          float(params.refine_angle), float(params.refine_velocity),
+                          float(params.refine_compression), params.combine == "max", float(params.size_min),
+                          float(params.size_max), float(params.aspect_min), out)
+    return out
+
+
+@nb.njit(cache=True)
+def _face_and_node_normals(x, fn, n_nodes):
+    """(unit face normals (F, 3), zero for collapsed faces; area-weighted unit node normals (N, 3))."""
+    F = fn.shape[0]
+    face_n = np.empty((F, 3))
+    acc = np.zeros((n_nodes, 3))
+    for f in range(F):
+        a, b, c = fn[f, 0], fn[f, 1], fn[f, 2]
+        e1x, e1y, e1z = x[b, 0] - x[a, 0], x[b, 1] - x[a, 1], x[b, 2] - x[a, 2]
+        e2x, e2y, e2z = x[c, 0] - x[a, 0], x[c, 1] - x[a, 1], x[c, 2] - x[a, 2]
+        nx = e1y * e2z - e1z * e2y
+        ny = e1z * e2x - e1x * e2z
+        nz = e1x * e2y - e1y * e2x
+        ln = math.sqrt(nx * nx + ny * ny + nz * nz)
+        s = ln if ln > 0.0 else 1.0
+        face_n[f, 0], face_n[f, 1], face_n[f, 2] = nx / s, ny / s, nz / s
+        for k in range(3):
+            i = fn[f, k]
+            acc[i, 0] += nx
+            acc[i, 1] += ny
+            acc[i, 2] += nz
+    for i in range(n_nodes):
+        ln = math.sqrt(acc[i, 0] ** 2 + acc[i, 1] ** 2 + acc[i, 2] ** 2)
+        if ln > 0.0:
+            acc[i, 0] /= ln
+            acc[i, 1] /= ln
+            acc[i, 2] /= ln
+    return face_n, acc
+
+
+@nb.njit(cache=True)
+def _dihedral_from_normals(face_n, edge_faces):
+    """(E,) unsigned angle between the unit normals of each interior edge's faces (0 on the boundary)."""
+    E = edge_faces.shape[0]
+    theta = np.zeros(E)
+    for e in range(E):
+        a, b = edge_faces[e, 0], edge_faces[e, 1]
+        if b < 0:
+            continue
+        c = face_n[a, 0] * face_n[b, 0] + face_n[a, 1] * face_n[b, 1] + face_n[a, 2] * face_n[b, 2]
+        theta[e] = math.acos(min(max(c, -1.0), 1.0))
+    return theta
+
+
+@nb.njit(cache=True)
+def _set_disk(k, m00, m01, m10, m11, cx, cy, rr):
+    """Tensor [[m00, m01], [m10, m11]] as disk k of the tensor maximum (_tensor_max_into)."""
+    cx[k] = 0.5 * (m00 - m11)
+    cy[k] = 0.5 * (m01 + m10)
+    rr[k] = 0.5 * (m00 + m11)
+
+
+@nb.njit(cache=True)
+def _physics_sizing_faces(x, v, fn, fv, fe, u, area, Dm_inv, theta, node_n, phi, obs_n, with_obstacles,
+                          obs_distance, refine_angle, refine_velocity, refine_compression, use_max, size_min,
+                          size_max, aspect_min, out):
+    """Kernel of physics_face_sizing: per face, the curvature, velocity, compression and
+    obstacle criteria (each as its function above), combined and clamped (combine_sizing) into out[f]."""
+    F = fn.shape[0]
+    K = 4 if with_obstacles else 3
+    cx, cy, rr, roots = np.empty(K), np.empty(K), np.empty(K), np.empty(2)
+    crit = np.zeros((K, 4))  # per criterion m00, m01, m10, m11
+    ra2 = refine_angle ** 2
+    rv2 = refine_velocity ** 2
+    c2 = refine_compression ** 2
+    wmin, wmax = 1.0 / size_max ** 2, 1.0 / size_min ** 2
+    for f in range(F):
+        n0, n1, n2 = fn[f, 0], fn[f, 1], fn[f, 2]
+        b00, b01, b10, b11 = Dm_inv[f, 0, 0], Dm_inv[f, 0, 1], Dm_inv[f, 1, 0], Dm_inv[f, 1, 1]
+        # curvature: S = sum_k (theta_k l_k / 2A) t_k t_k^T; N (3x2) the gradient of the node normals
+        s00 = s01 = s11 = 0.0
+        for k in range(3):
+            va, vb = fv[f, k], fv[f, (k + 1) % 3]
+            ex, ey = u[vb, 0] - u[va, 0], u[vb, 1] - u[va, 1]
+            length = math.sqrt(ex * ex + ey * ey)
+            tx, ty = ey / length, -ex / length
+            w = 0.5 * theta[fe[f, k]] * length / area[f]
+            s00 += w * tx * tx
+            s01 += w * tx * ty
+            s11 += w * ty * ty
+        q01 = s00 * s01 + s01 * s11
+        _set_disk(0, s00 * s00 + s01 * s01, q01, q01, s01 * s01 + s11 * s11, cx, cy, rr)
+        g00 = g01 = g11 = 0.0
+        for i in range(3):
+            d1, d2 = node_n[n1, i] - node_n[n0, i], node_n[n2, i] - node_n[n0, i]
+            a0, a1 = d1 * b00 + d2 * b10, d1 * b01 + d2 * b11
+            g00 += a0 * a0
+            g01 += a0 * a1
+            g11 += a1 * a1
+        _set_disk(1, g00, g01, g01, g11, cx, cy, rr)
+        r, px, py = _disk_max(cx, cy, rr, 2, roots)
+        crit[0, 0], crit[0, 1], crit[0, 2], crit[0, 3] = (r + px) / ra2, py / ra2, py / ra2, (r - px) / ra2
+        # velocity: V^T V / refine_velocity^2
+        h00 = h01 = h11 = 0.0
+        for i in range(3):
+            d1, d2 = v[n1, i] - v[n0, i], v[n2, i] - v[n0, i]
+            a0, a1 = d1 * b00 + d2 * b10, d1 * b01 + d2 * b11
+            h00 += a0 * a0
+            h01 += a0 * a1
+            h11 += a1 * a1
+        crit[1, 0], crit[1, 1], crit[1, 2], crit[1, 3] = h00 / rv2, h01 / rv2, h01 / rv2, h11 / rv2
+        # compression: pos(-e + sqrt(e^T e - 4 c^2 adj(N^T N))) / (2 c^2), e = F^T F - I
+        h00 = h01 = h11 = 0.0
+        for i in range(3):
+            d1, d2 = x[n1, i] - x[n0, i], x[n2, i] - x[n0, i]
+            a0, a1 = d1 * b00 + d2 * b10, d1 * b01 + d2 * b11
+            h00 += a0 * a0
+            h01 += a0 * a1
+            h11 += a1 * a1
+        e00, e01, e11 = 2.0 * (0.5 * (h00 - 1.0)), 2.0 * (0.5 * h01), 2.0 * (0.5 * (h11 - 1.0))
+        lo, hi, cs, sn = eig2x2(e00 * e00 + e01 * e01 - 4.0 * c2 * g11, e01 * e00 + e11 * e01 + 4.0 * c2 * g01,
+                               e01 * e01 + e11 * e11 - 4.0 * c2 * g00)
+        lo = math.copysign(math.sqrt(abs(lo)), lo) if lo != 0.0 else 0.0
+        hi = math.copysign(math.sqrt(abs(hi)), hi) if hi != 0.0 else 0.0
+        r00, r11, r01 = lo * sn * sn + hi * cs * cs, lo * cs * cs + hi * sn * sn, (hi - lo) * cs * sn
+        lo, hi, cs, sn = eig2x2(r00 - e00, r01 - e01, r11 - e11)
+        lo, hi = max(lo, 0.0), max(hi, 0.0)
+        r01 = (hi - lo) * cs * sn / (2.0 * c2)
+        crit[2, 0], crit[2, 1], crit[2, 2] = (lo * sn * sn + hi * cs * cs) / (2.0 * c2), r01, r01
+        crit[2, 3] = (lo * cs * cs + hi * sn * sn) / (2.0 * c2)
+        # obstacles: the mean over the corners near one of g g^T / phi^2
+        if with_obstacles:
+            o00 = o01 = o11 = 0.0
+            for i in range(3):
+                ni = fn[f, i]
+                if not (phi[ni] < obs_distance and phi[ni] > 0.0):
+                    continue
+                h0 = h1 = h2 = 0.0
+                for c in range(3):
+                    h0 += (x[n0, c] - x[ni, c]) * obs_n[ni, c]
+                    h1 += (x[n1, c] - x[ni, c]) * obs_n[ni, c]
+                    h2 += (x[n2, c] - x[ni, c]) * obs_n[ni, c]
+                h0, h1, h2 = h0 + phi[ni], h1 + phi[ni], h2 + phi[ni]
+                dh0, dh1 = h1 - h0, h2 - h0
+                a0, a1 = dh0 * b00 + dh1 * b10, dh0 * b01 + dh1 * b11
+                p2 = max(phi[ni], 1e-12) ** 2
+                o00 += a0 * a0 / p2
+                o01 += a0 * a1 / p2
+                o11 += a1 * a1 / p2
+            crit[3, 0], crit[3, 1], crit[3, 2], crit[3, 3] = o00 / 3.0, o01 / 3.0, o01 / 3.0, o11 / 3.0
+        # combine (tensor maximum or sum), then clamp_sizing
+        if use_max:
+            for k in range(K):
+                _set_disk(k, crit[k, 0], crit[k, 1], crit[k, 2], crit[k, 3], cx, cy, rr)
+            r, px, py = _disk_max(cx, cy, rr, K, roots)
+            m00, m01, m10, m11 = r + px, py, py, r - px
+        else:
+            m00 = m01 = m10 = m11 = 0.0
+            for k in range(K):
+                m00 += crit[k, 0]
+                m01 += crit[k, 1]
+                m10 += crit[k, 2]
+                m11 += crit[k, 3]
+        lo, hi, cs, sn = eig2x2(m00, 0.5 * (m10 + m01), m11)
+        lo, hi = min(max(lo, wmin), wmax), min(max(hi, wmin), wmax)
+        floor = aspect_min ** 2 * max(lo, hi)
+        lo, hi = max(lo, floor), max(hi, floor)
+        out[f, 0, 0] = lo * sn * sn + hi * cs * cs
+        out[f, 1, 1] = lo * cs * cs + hi * sn * sn
+        out[f, 0, 1] = out[f, 1, 0] = (hi - lo) * cs * sn
 
 
 # Relative tolerance of "at a bound": clamp_sizing's eigen-decomposition returns the clamped

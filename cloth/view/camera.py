@@ -25,6 +25,13 @@ def _unit(v, name):
     return v / n
 
 
+def _cross(a, b):
+    """np.cross of two 3-vectors, as Python floats (the same bits; numpy's call costs 20x more)."""
+    a0, a1, a2 = float(a[0]), float(a[1]), float(a[2])
+    b0, b1, b2 = float(b[0]), float(b[1]), float(b[2])
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+
+
 @dataclass(frozen=True)
 class Camera:
     """A pinhole camera with a vertical field of view of `fov_y_deg` and a `width` x `height` image.
@@ -48,7 +55,7 @@ class Camera:
         if pos.shape != (3,) or not np.all(np.isfinite(pos)):
             raise ViewError(f"camera position must be 3 finite numbers, got {self.position}")
         forward = _unit(np.asarray(self.look_at, float) - pos, "look_at - position")
-        right = np.cross(forward, _unit(self.up, "up"))
+        right = _cross(forward, _unit(self.up, "up"))
         if np.linalg.norm(right) < 1e-9:
             raise ViewError(f"camera up {tuple(self.up)} is parallel to the viewing direction {tuple(forward)}")
         right /= np.linalg.norm(right)
@@ -61,7 +68,7 @@ class Camera:
         object.__setattr__(self, "_pos", pos)
         object.__setattr__(self, "_forward", forward)
         object.__setattr__(self, "_right", right)
-        object.__setattr__(self, "_up", np.cross(right, forward))
+        object.__setattr__(self, "_up", _cross(right, forward))
         # tangents of the half-angles of the frustum, vertical and horizontal
         ty = float(np.tan(np.radians(self.fov_y_deg) / 2.0))
         object.__setattr__(self, "_tan", (ty * self.width / self.height, ty))
@@ -148,26 +155,43 @@ def _frustum_geometry(tx: float, ty: float, near: float, far: float):
     corner and the outward normal, per face side its start and inward normal, per edge a segment."""
     corners = np.array([[sx * tx * d, sy * ty * d, d] for d in (near, far)
                         for sx, sy in ((-1, 1), (1, 1), (1, -1), (-1, -1))])
-    center = corners.mean(axis=0)
-    plane = np.empty((6, 2, 3))
-    sides = np.empty((6, 4, 2, 3))
-    for f, quad in enumerate(Camera.FRUSTUM_FACES):
-        q = corners[list(quad)]
-        n = np.cross(q[1] - q[0], q[2] - q[0])
-        n /= np.linalg.norm(n)
-        if (center - q[0]) @ n > 0:
-            n = -n
-        plane[f] = q[0], n
-        for k in range(4):
-            a, b = q[k], q[(k + 1) % 4]
-            m = np.cross(n, b - a)
-            if (q.mean(axis=0) - a) @ m < 0:
-                m = -m
-            sides[f, k] = a, m
-    seg = np.array([[corners[i], corners[j] - corners[i]] for i, j in Camera.FRUSTUM_EDGES])
+    plane, sides = _frustum_planes(corners, np.array(Camera.FRUSTUM_FACES, dtype=np.int64))
+    edges = np.array(Camera.FRUSTUM_EDGES, dtype=np.int64)
+    seg = np.stack([corners[edges[:, 0]], corners[edges[:, 1]] - corners[edges[:, 0]]], axis=1)
     for arr in (plane, sides, seg):
         arr.setflags(write=False)
     return plane, sides, seg
+
+
+@njit(cache=True)
+def _cross3(a, b):
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+@njit(cache=True)
+def _frustum_planes(corners, faces):
+    """Kernel of _frustum_geometry: (plane (6, 2, 3), sides (6, 4, 2, 3)) of the frustum's faces."""
+    center = np.zeros(3)
+    for i in range(8):
+        center += corners[i]
+    center /= 8.0
+    plane = np.empty((6, 2, 3))
+    sides = np.empty((6, 4, 2, 3))
+    for f in range(6):
+        q = corners[faces[f]]
+        n = _cross3(q[1] - q[0], q[2] - q[0])
+        n /= np.sqrt(_dot3(n, n))
+        if _dot3(center - q[0], n) > 0:
+            n = -n
+        plane[f, 0], plane[f, 1] = q[0], n
+        qc = (q[0] + q[1] + q[2] + q[3]) / 4.0
+        for k in range(4):
+            a, b = q[k], q[(k + 1) % 4]
+            m = _cross3(n, b - a)
+            if _dot3(qc - a, m) < 0:
+                m = -m
+            sides[f, k, 0], sides[f, k, 1] = a, m
+    return plane, sides
 
 
 @njit(cache=True)
@@ -177,42 +201,37 @@ def _dot3(a, b):
 
 @njit(cache=True)
 def _frustum_distance(p, plane, sides, seg, tx, ty, near, far):
-    """Kernel of Camera.distance_to_frustum, all in camera coordinates."""
-    cam = p
+    """Kernel of Camera.distance_to_frustum, all in camera coordinates (scalar code: no array
+    views in the loops)."""
     n = p.shape[0]
     out = np.empty(n)
-    d = np.empty(3)
     for i in range(n):
-        z = cam[i, 2]
-        if near <= z <= far and abs(cam[i, 0]) <= tx * z and abs(cam[i, 1]) <= ty * z:
+        px, py, pz = p[i, 0], p[i, 1], p[i, 2]
+        if near <= pz <= far and abs(px) <= tx * pz and abs(py) <= ty * pz:
             out[i] = 0.0
             continue
         best = np.inf
         for f in range(6):
-            for c in range(3):
-                d[c] = p[i, c] - plane[f, 0, c]
-            h = _dot3(d, plane[f, 1])
+            nx, ny, nz = plane[f, 1, 0], plane[f, 1, 1], plane[f, 1, 2]
+            h = (px - plane[f, 0, 0]) * nx + (py - plane[f, 0, 1]) * ny + (pz - plane[f, 0, 2]) * nz
             if h <= 0.0 or h >= best:
                 continue
             within = True
             for k in range(4):  # the foot p - h n against each side's inward normal
-                s = 0.0
-                for c in range(3):
-                    s += (p[i, c] - h * plane[f, 1, c] - sides[f, k, 0, c]) * sides[f, k, 1, c]
+                s = ((px - h * nx - sides[f, k, 0, 0]) * sides[f, k, 1, 0]
+                     + (py - h * ny - sides[f, k, 0, 1]) * sides[f, k, 1, 1]
+                     + (pz - h * nz - sides[f, k, 0, 2]) * sides[f, k, 1, 2])
                 if s < 0.0:
                     within = False
                     break
             if within:
                 best = h
         for e in range(seg.shape[0]):
-            for c in range(3):
-                d[c] = p[i, c] - seg[e, 0, c]
-            ab = seg[e, 1]
-            t = min(max(_dot3(d, ab) / _dot3(ab, ab), 0.0), 1.0)
-            r2 = 0.0
-            for c in range(3):
-                r = d[c] - t * ab[c]
-                r2 += r * r
+            dx, dy, dz = px - seg[e, 0, 0], py - seg[e, 0, 1], pz - seg[e, 0, 2]
+            ax, ay, az = seg[e, 1, 0], seg[e, 1, 1], seg[e, 1, 2]
+            t = min(max((dx * ax + dy * ay + dz * az) / (ax * ax + ay * ay + az * az), 0.0), 1.0)
+            rx, ry, rz = dx - t * ax, dy - t * ay, dz - t * az
+            r2 = rx * rx + ry * ry + rz * rz
             if r2 < best * best:
                 best = np.sqrt(r2)
         out[i] = best

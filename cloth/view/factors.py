@@ -13,14 +13,16 @@ One public function per equation of the paper, vectorised over faces:
 =====================================  =========================================================
 
 The camera itself is :class:`cloth.view.camera.Camera`; camera paths are in :mod:`cloth.view.paths`.
-The eigenvalue clamp of eqs 7-8 is :func:`cloth.core.tensors.eig_apply`, shared with the sizing.
+The eigenvalue clamp of eqs 7-8 uses the closed-form 2x2 eigen-system :func:`cloth.core.tensors.eig2x2`,
+shared with the sizing.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
-from cloth.core.tensors import eig_apply
+from cloth.core.tensors import eig2x2
 from cloth.view.camera import Camera, ViewError
 
 # Relative slack on eq 4's tau samples: taus built as k * frame_time may overshoot T = K *
@@ -92,23 +94,41 @@ def screen_space_clamp(M, S, l_min: float) -> np.ndarray:
     M~ unchanged where every edge it asks for is at least l_min pixels long. Faces whose S is
     singular (seen edge-on) keep M~.
     """
-    M = np.asarray(M, dtype=np.float64)
-    S = np.asarray(S, dtype=np.float64)
+    M = np.ascontiguousarray(M, dtype=np.float64)
+    S = np.ascontiguousarray(S, dtype=np.float64)
     if not l_min > 0:
         raise ViewError(f"screen_space_clamp: l_min must be > 0 pixels, got {l_min}")
-    det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
-    scale = np.einsum("fij,fij->f", S, S)
-    ok = np.abs(det) > 1e-12 * scale
     out = M.copy()
-    if not ok.any():
-        return out
-    Si = np.linalg.inv(S[ok])
-    Ms = np.einsum("fki,fkl,flj->fij", Si, M[ok], Si)  # S^-T M S^-1
-    Ms = 0.5 * (Ms + np.transpose(Ms, (0, 2, 1)))
-    Mh = eig_apply(Ms, lambda lam: np.minimum(lam, float(l_min) ** -2))
-    Mvd = np.einsum("fki,fkl,flj->fij", S[ok], Mh, S[ok])  # S^T M^ S
-    out[ok] = 0.5 * (Mvd + np.transpose(Mvd, (0, 2, 1)))
+    _screen_space_clamp_faces(M, S, float(l_min) ** -2, out)
     return out
+
+
+@njit(cache=True)
+def _screen_space_clamp_faces(M, S, lam_max, out):
+    """Kernel of screen_space_clamp, face by face in scalars (eig_apply's closed form 2x2
+    eigen-system): out[f] = S^T min(S^-T M S^-1, lam_max) S, symmetrised, where S is regular."""
+    for f in range(M.shape[0]):
+        s00, s01, s10, s11 = S[f, 0, 0], S[f, 0, 1], S[f, 1, 0], S[f, 1, 1]
+        det = s00 * s11 - s01 * s10
+        if not abs(det) > 1e-12 * (s00 * s00 + s01 * s01 + s10 * s10 + s11 * s11):
+            continue
+        i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det  # S^-1
+        m00, m01, m10, m11 = M[f, 0, 0], M[f, 0, 1], M[f, 1, 0], M[f, 1, 1]
+        # S^-T M S^-1: (i, j) = sum_kl Si[k, i] M[k, l] Si[l, j]
+        a00 = i00 * (m00 * i00 + m01 * i10) + i10 * (m10 * i00 + m11 * i10)
+        a01 = i00 * (m00 * i01 + m01 * i11) + i10 * (m10 * i01 + m11 * i11)
+        a10 = i01 * (m00 * i00 + m01 * i10) + i11 * (m10 * i00 + m11 * i10)
+        a11 = i01 * (m00 * i01 + m01 * i11) + i11 * (m10 * i01 + m11 * i11)
+        lo, hi, cs, sn = eig2x2(a00, 0.5 * (a10 + a01), a11)
+        lo, hi = min(lo, lam_max), min(hi, lam_max)
+        h00, h11, h01 = lo * sn * sn + hi * cs * cs, lo * cs * cs + hi * sn * sn, (hi - lo) * cs * sn
+        # S^T M^ S
+        b00 = s00 * (h00 * s00 + h01 * s10) + s10 * (h01 * s00 + h11 * s10)
+        b01 = s00 * (h00 * s01 + h01 * s11) + s10 * (h01 * s01 + h11 * s11)
+        b10 = s01 * (h00 * s00 + h01 * s10) + s11 * (h01 * s00 + h11 * s10)
+        b11 = s01 * (h00 * s01 + h01 * s11) + s11 * (h01 * s01 + h11 * s11)
+        out[f, 0, 0], out[f, 1, 1] = b00, b11
+        out[f, 0, 1] = out[f, 1, 0] = 0.5 * (b01 + b10)
 
 
 def resample_silhouette(nu, visible, edge_faces, threshold: float) -> np.ndarray:
