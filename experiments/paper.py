@@ -57,6 +57,7 @@ import pandas as pd
 import yaml
 
 from cloth.io.manifest import write_text_atomic
+from experiments.joblock import FolderInUse, JobLock
 from experiments.progress import Heartbeat, JobClock, StudyWatch, planned_runs
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -249,6 +250,17 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     out = (args.out or ROOT / "results" / "paper" / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")).resolve()
     out.mkdir(parents=True, exist_ok=True)
+    command = shlex.join(["python", "-m", "experiments.paper", *(sys.argv[1:] if argv is None else argv)])
+    try:  # a second job in this folder would skip what the first finished and share its cores
+        with JobLock(out, command):
+            return run_job(args, out, argv)
+    except FolderInUse as exc:
+        print(f"experiments.paper: {exc}", file=sys.stderr)
+        return 2
+
+
+def run_job(args, out: Path, argv=None) -> int:
+    """The main job into `out` (main holds its lock)."""
     failed = []
     t_start = time.perf_counter()
     # Numba compiles a kernel the first time any process calls it and caches it on disk; on a

@@ -59,6 +59,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import shlex
 import sys
 import time
 from dataclasses import dataclass
@@ -76,6 +77,7 @@ from cloth.io.checkpoint import CheckpointError, checkpoint_path, load_checkpoin
 from cloth.io.manifest import code_version, write_text_atomic
 from experiments.analysis.tables import markdown
 from experiments.build import build_simulation
+from experiments.joblock import FolderInUse, JobLock
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
 
@@ -311,6 +313,19 @@ def main(argv=None) -> None:
     # the resumed table's runs of cases this suite does not run (another --cases): carried into its
     # tables and report as they were, so that a suite run case by case over sittings loses none
     others = other_rows(args.resume, names) if args.resume is not None else []
+    args.out.mkdir(parents=True, exist_ok=True)
+    lock = JobLock(args.out, shlex.join(["python", "-m", "experiments.stability",
+                                         *(argv if argv is not None else sys.argv[1:])]))
+    try:  # a second suite here would continue the same checkpoints and share the cores
+        with lock:
+            run_suite(args, argv, names, frames_of, done, others)
+    except FolderInUse as exc:
+        raise SystemExit(f"experiments.stability: {exc}") from None
+
+
+def run_suite(args, argv, names, frames_of, done: dict, others: list) -> None:
+    """The suite of `main`'s arguments (main holds the lock of args.out); `done`, `others`: the
+    resumed table's rows kept and carried (resumed_rows, other_rows)."""
     out = args.out / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     out.mkdir(parents=True, exist_ok=True)
     code = code_version()
