@@ -64,13 +64,14 @@ FACE_PROJECTION_ROUND_OFF = 1e-11
 
 
 def _compressed_faces(rng, n, tmp_path):
-    """Exact StVK and measured-membrane Hessians of random faces, squeezed and sheared so that
-    most are indefinite, with their g = [-1 -1; 1 0; 0 1] Dm^-1 rows."""
+    """Exact StVK (plain or buckling-compensated) and measured-membrane Hessians of random faces,
+    squeezed and sheared so that most are indefinite, with their g = [-1 -1; 1 0; 0 1] Dm^-1 rows
+    and deformation gradients F."""
     from helpers import write_material
 
     from cloth.core.measured import load_arcsim_material
     from cloth.physics.measured_membrane import measured_element
-    from cloth.physics.membrane import stvk_element
+    from cloth.physics.membrane import deformation_gradient, stvk_element
 
     samples = np.ascontiguousarray(load_arcsim_material(write_material(tmp_path / "knit.json")).stretching_samples)
     out = []
@@ -83,9 +84,10 @@ def _compressed_faces(rng, n, tmp_path):
         x = np.hstack([u, np.zeros((3, 1))]) * rng.uniform(0.5, 1.1) + rng.normal(size=(3, 3)) * 0.01
         area = 0.5 * abs(np.linalg.det(Dm))
         g = np.vstack([-Dm_inv.sum(axis=0), Dm_inv])
-        out.append((stvk_element(x[0], x[1], x[2], Dm_inv, area, 1e3, 2e3, False)[2], g))
-        alpha = rng.choice([1.0, 0.3])
-        out.append((measured_element(x[0], x[1], x[2], Dm_inv, area, samples, alpha, False, np.empty(4))[2], g))
+        F = deformation_gradient(x[0], x[1], x[2], Dm_inv)
+        alpha = rng.choice([1.0, 0.3])  # 0.3: buckling compensation's filtered energy (eq 10)
+        out.append((stvk_element(x[0], x[1], x[2], Dm_inv, area, 1e3, 2e3, False, alpha)[2], g, F))
+        out.append((measured_element(x[0], x[1], x[2], Dm_inv, area, samples, alpha, False, np.empty(4))[2], g, F))
     return out
 
 
@@ -97,7 +99,7 @@ def test_a_face_projected_through_its_deformation_gradient_equals_the_9x9_projec
 
     rng = np.random.default_rng(1)
     indefinite = 0
-    for H, g in _compressed_faces(rng, 300, tmp_path):
+    for H, g, _ in _compressed_faces(rng, 300, tmp_path):
         indefinite += bool(np.linalg.eigvalsh(H).min() < -1e-9 * np.abs(H).max())
         full, reduced = H.copy(), H.copy()
         project_psd(full, absolute)
@@ -105,3 +107,54 @@ def test_a_face_projected_through_its_deformation_gradient_equals_the_9x9_projec
         assert np.abs(reduced - full).max() <= FACE_PROJECTION_ROUND_OFF * np.abs(H).max()
         assert np.array_equal(reduced, reduced.T)
     assert indefinite > 100  # the case exercises the projection
+
+
+def _planar_basis(g, F):
+    """(in-plane W (9, 4), out-of-plane W (9, 2)): project_psd_face_planar's whitened basis."""
+    w, V = np.linalg.eigh(g.T @ g)
+    h = g @ (V @ np.diag(w ** -0.5) @ V.T)
+    n = np.cross(F[:, 0], F[:, 1])
+    n /= np.linalg.norm(n)
+    t1 = F[:, 0] / np.linalg.norm(F[:, 0])
+    t2 = np.cross(n, t1)
+    return (np.stack([np.kron(h[:, k], c) for c in (t1, t2) for k in (0, 1)], 1),
+            np.stack([np.kron(h[:, k], n) for k in (0, 1)], 1))
+
+
+# The in-plane / out-of-plane coupling of a face's Hessian, relative to its largest entry: zero
+# in exact arithmetic for an energy of C = F^T F, a few ulps of the 9x9 products here.
+PLANAR_COUPLING_ROUND_OFF = 1e-12
+
+
+@pytest.mark.parametrize("absolute", [False, True])
+def test_a_face_projected_by_its_plane_equals_the_9x9_projection(absolute, tmp_path):
+    """cloth.physics.membrane.project_psd_face_planar: the Hessian of an energy of C = F^T F has
+    no term coupling displacements along the face's normal to those in its plane, so projecting
+    the out-of-plane 2x2 (closed form) and, when it is indefinite, the in-plane 4x4 is projecting
+    the Hessian; both branches of the in-plane test are taken, and a face of no world area falls
+    back to the 6x6 projection."""
+    from cloth.physics.membrane import project_psd_face_planar
+
+    rng = np.random.default_rng(2)
+    in_plane_indefinite = out_of_plane_indefinite = 0
+    faces = _compressed_faces(rng, 300, tmp_path)
+    for H, g, F in faces:
+        Win, Wn = _planar_basis(g, F)
+        scale = np.abs(H).max()
+        assert np.abs(Win.T @ H @ Wn).max() <= PLANAR_COUPLING_ROUND_OFF * scale
+        in_plane_indefinite += bool(np.linalg.eigvalsh(Win.T @ H @ Win).min() < -1e-9 * scale)
+        out_of_plane_indefinite += bool(np.linalg.eigvalsh(Wn.T @ H @ Wn).min() < -1e-9 * scale)
+        full, planar = H.copy(), H.copy()
+        project_psd(full, absolute)
+        project_psd_face_planar(planar, g, F, absolute)
+        assert np.abs(planar - full).max() <= FACE_PROJECTION_ROUND_OFF * scale
+        assert np.array_equal(planar, planar.T)
+    assert in_plane_indefinite > 50 and out_of_plane_indefinite > 100  # both blocks are exercised
+    assert in_plane_indefinite < len(faces) - 50  # and so is the Cholesky test's passing branch
+    H, g, F = faces[0]
+    flat = F.copy()
+    flat[:, 1] = 2.0 * flat[:, 0]  # collinear: no normal
+    full, planar = H.copy(), H.copy()
+    project_psd(full, absolute)
+    project_psd_face_planar(planar, g, flat, absolute)
+    assert np.abs(planar - full).max() <= FACE_PROJECTION_ROUND_OFF * np.abs(H).max()

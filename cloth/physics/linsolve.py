@@ -43,8 +43,8 @@ BENDING_HESSIANS = ("projected", "gauss_newton")
 # sheet at 8k-32k faces (experiments.benchmark --bending-hessian both).
 BENDING_HESSIAN_DEFAULT = "gauss_newton"
 # The StVK membrane's Hessian: "projected", the exact one projected to positive semi-definite where
-# the stress is not (a 6x6 eigen-decomposition per compressed face, cloth.physics.membrane
-# .project_psd_face: half the membrane's cost at 32k faces); "gauss_newton", the stress's positive
+# the stress is not (per compressed face a closed-form 2x2 and, for about half of them, a 4x4
+# eigen-decomposition, cloth.physics.membrane.project_psd_face_planar); "gauss_newton", the stress's positive
 # part in the geometric term, PSD with no eigen-decomposition (what the pop filter uses). A face
 # with buckling compensation is projected either way; ARCSim's measured membrane is projected.
 # Not the default until the accuracy study and the stability suite have been run with it.

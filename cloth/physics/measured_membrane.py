@@ -54,7 +54,7 @@ import numpy as np
 from numba import njit, prange
 
 from cloth.physics.dde import stretching_stiffness
-from cloth.physics.membrane import ABSOLUTE_STRAIN, deformation_gradient, green_strain, project_psd_face
+from cloth.physics.membrane import ABSOLUTE_STRAIN, deformation_gradient, green_strain, project_psd_face_planar
 
 
 @njit(cache=True)
@@ -231,7 +231,7 @@ def measured_element_into(x0, x1, x2, Dm_inv, area, samples, alpha, project, gra
             hess[c, r] = v
     if project and not (S00 + S11 >= 0.0 and S00 * S11 - S01 * S01 >= 0.0 and _psd3(M)):
         m_, p_ = 0.5 * (E[0, 0] + E[1, 1]), 0.5 * (E[0, 0] - E[1, 1])
-        project_psd_face(hess, g, m_ - math.sqrt(p_ * p_ + E[0, 1] * E[0, 1]) < ABSOLUTE_STRAIN)
+        project_psd_face_planar(hess, g, F, m_ - math.sqrt(p_ * p_ + E[0, 1] * E[0, 1]) < ABSOLUTE_STRAIN)
     return energy
 
 

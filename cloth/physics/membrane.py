@@ -19,7 +19,8 @@ with A the material area and (mu, lam) the 2D Lamé parameters in N/m. Gradient 
 The last three terms are A (dE/dx)^T C (dE/dx), positive semi-definite; the first is a
 Kronecker product of the Gram matrix (g_a^T S g_b) with I, PSD whenever S is. So the Hessian
 can be indefinite only under compression (S with a negative eigenvalue), and only then is it
-eigen-decomposed (cloth.physics.eigen) and made positive semi-definite (:func:`project_psd`): negative eigenvalues are
+eigen-decomposed (cloth.physics.eigen; by the face's plane, :func:`project_psd_face_planar`) and
+made positive semi-definite (:func:`project_psd`): negative eigenvalues are
 clamped to zero under mild compression, and replaced by their absolute values (Chen et al.,
 "Stabler Neo-Hookean Simulation", 2024) where E's smallest eigenvalue is below
 ABSOLUTE_STRAIN = -0.1 (a principal stretch below 0.89). A face compressed that far with
@@ -182,6 +183,143 @@ def project_psd_face(hess, g, absolute=False):
             hess[j, i] = m
 
 
+# Slack of the in-plane block's positive-definiteness test in project_psd_face_planar, relative to
+# the block's largest diagonal entry: a block whose Cholesky factorisation of A + slack I
+# succeeds has no eigenvalue below -slack, so leaving it unprojected differs from the full
+# projection by at most that, round-off of the matrix's norm (the eigensolver's own is 1e-13).
+PLANAR_PSD_SLACK = 1e-13
+
+
+@njit(cache=True)
+def _subtract_negative_part(hess, W, vec, w, c):
+    """hess -= c w y y^T with y = W vec (9,): one negative eigenpair (w, vec in W's basis) removed
+    (c = 1) or reflected (c = 2)."""
+    y = np.zeros(9)
+    for r in range(9):
+        for k in range(W.shape[1]):
+            y[r] += W[r, k] * vec[k]
+    cw = c * w
+    for r in range(9):
+        yr = cw * y[r]
+        for s in range(9):
+            hess[r, s] -= yr * y[s]
+
+
+@njit(cache=True)
+def project_psd_face_planar(hess, g, F, absolute=False):
+    """:func:`project_psd_face` for the Hessian of an energy that depends on a face's nodes only
+    through C = F^T F (StVK, buckling-compensated or measured): the same matrix to round-off,
+    with a 2x2 and a 4x4 eigenproblem instead of a 6x6 one, and most often without the 4x4.
+
+    Rotating the world does not change C, and F's columns lie in the face's plane (unit normal
+    n): a displacement along n, x_a += n b_a, changes C only at second order (F^T n = 0), by
+    (g^T b)(g^T b)^T, and shares no term with a displacement in the plane.
+    In the whitened basis of project_psd_face, taken along (t1, t2, n) with t1, t2 spanning the
+    plane, M (6x6) is thus block-diagonal: an in-plane block (4x4: stretch, shear and the
+    in-plane rotation) and an out-of-plane block (2x2: the geometric term A g^T S g, whitened),
+    which holds the negative eigenvalues of every compressed face. The 2x2 is decomposed in
+    closed form; the 4x4 only when a Cholesky factorisation of it plus PLANAR_PSD_SLACK fails
+    (about 45 % of the projected faces of a buckling sheet or skirt: where C : S < 0, as under
+    compression both ways, the in-plane rotation alone has negative stiffness). A face of no world area, or a degenerate
+    rest face, goes to project_psd_face."""
+    n0 = F[1, 0] * F[2, 1] - F[2, 0] * F[1, 1]
+    n1 = F[2, 0] * F[0, 1] - F[0, 0] * F[2, 1]
+    n2 = F[0, 0] * F[1, 1] - F[1, 0] * F[0, 1]
+    nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    p, q, r = 0.0, 0.0, 0.0
+    for a in range(3):
+        p += g[a, 0] * g[a, 0]
+        q += g[a, 0] * g[a, 1]
+        r += g[a, 1] * g[a, 1]
+    l1, l2, e1, e2 = _eig_sym2(p, q, r)
+    if not (nn > 0.0 and np.isfinite(nn) and l2 > 0.0):
+        project_psd_face(hess, g, absolute)
+        return
+    frame = np.empty((3, 3))  # rows t1, t2, n
+    frame[2, 0], frame[2, 1], frame[2, 2] = n0 / nn, n1 / nn, n2 / nn
+    c0 = np.sqrt(F[0, 0] * F[0, 0] + F[1, 0] * F[1, 0] + F[2, 0] * F[2, 0])
+    for i in range(3):
+        frame[0, i] = F[i, 0] / c0
+    frame[1, 0] = frame[2, 1] * frame[0, 2] - frame[2, 2] * frame[0, 1]
+    frame[1, 1] = frame[2, 2] * frame[0, 0] - frame[2, 0] * frame[0, 2]
+    frame[1, 2] = frame[2, 0] * frame[0, 1] - frame[2, 1] * frame[0, 0]
+    s1, s2 = 1.0 / np.sqrt(l1), 1.0 / np.sqrt(l2)
+    r00 = s1 * e1[0] * e1[0] + s2 * e2[0] * e2[0]  # Gm^-1/2
+    r01 = s1 * e1[0] * e1[1] + s2 * e2[0] * e2[1]
+    r11 = s1 * e1[1] * e1[1] + s2 * e2[1] * e2[1]
+    h = np.empty((3, 2))
+    for a in range(3):
+        h[a, 0] = g[a, 0] * r00 + g[a, 1] * r01
+        h[a, 1] = g[a, 0] * r01 + g[a, 1] * r11
+    W = np.empty((9, 6))  # orthonormal columns h[:, k] (x) frame[c], column 2c + k
+    for a in range(3):
+        for i in range(3):
+            for c in range(3):
+                for k in range(2):
+                    W[3 * a + i, 2 * c + k] = h[a, k] * frame[c, i]
+    T = np.zeros((9, 6))  # hess W
+    for row in range(9):
+        for s in range(9):
+            hs = hess[row, s]
+            for col in range(6):
+                T[row, col] += hs * W[s, col]
+    M = np.zeros((6, 6))  # W^T hess W
+    for i in range(6):
+        for j in range(i, 6):
+            v = 0.0
+            for row in range(9):
+                v += W[row, i] * T[row, j]
+            M[i, j] = v
+            M[j, i] = v
+    c = 2.0 if absolute else 1.0
+    # out-of-plane block, closed form
+    b1, b2, v1, v2 = _eig_sym2(M[4, 4], M[4, 5], M[5, 5])
+    vec = np.zeros(6)
+    if b1 < 0.0:
+        vec[4], vec[5] = v1[0], v1[1]
+        _subtract_negative_part(hess, W, vec, b1, c)
+    if b2 < 0.0:
+        vec[4], vec[5] = v2[0], v2[1]
+        _subtract_negative_part(hess, W, vec, b2, c)
+    # in-plane block: Cholesky of A + slack I, the 4x4 eigenproblem only if that fails
+    A = M[:4, :4].copy()
+    slack = 0.0
+    for i in range(4):
+        slack = max(slack, abs(A[i, i]))
+    slack *= PLANAR_PSD_SLACK
+    L = A.copy()
+    definite = True
+    for j in range(4):
+        d = L[j, j] + slack
+        for k in range(j):
+            d -= L[j, k] * L[j, k]
+        if not d > 0.0:
+            definite = False
+            break
+        d = np.sqrt(d)
+        L[j, j] = d
+        for i in range(j + 1, 4):
+            s = L[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / d
+    if not definite:
+        w = np.empty(4)
+        V = np.empty((4, 4))
+        symmetric_eig(A, w, V)
+        for k in range(4):
+            if w[k] < 0.0:
+                for i in range(4):
+                    vec[i] = V[i, k]
+                vec[4], vec[5] = 0.0, 0.0
+                _subtract_negative_part(hess, W, vec, w[k], c)
+    for i in range(9):  # exactly symmetric, as the element Hessians are assembled
+        for j in range(i + 1, 9):
+            m = 0.5 * (hess[i, j] + hess[j, i])
+            hess[i, j] = m
+            hess[j, i] = m
+
+
 @njit(cache=True)
 def _eig_sym2(a, b, c):
     """Eigen-decomposition of [[a, b], [b, c]]: (l1 >= l2, q1 (2,), q2 (2,))."""
@@ -264,7 +402,7 @@ def _filtered_element_into(F, E, Dm_inv, area, mu, lam, alpha, project, grad, he
                 h += g[a, 0] * Sg[b, 0] + g[a, 1] * Sg[b, 1]
             hess[r, c] = area * h
     if project and not (p1 >= 0.0 and p2 >= 0.0 and cc >= 0.0):
-        project_psd_face(hess, g, l2 < ABSOLUTE_STRAIN)
+        project_psd_face_planar(hess, g, F, l2 < ABSOLUTE_STRAIN)
     return energy
 
 
@@ -399,7 +537,7 @@ def stvk_element_into(x0, x1, x2, Dm_inv, area, mu, lam, project, grad, hess, al
                     hess[3 * a + i, 3 * b + j] = area * h
     # S is PSD iff its trace and determinant are >= 0; then so is the Hessian
     if project and not clamp and not (S00 + S11 >= 0.0 and S00 * S11 - S01 * S01 >= 0.0):
-        project_psd_face(hess, g, _strongly_compressed(E[0, 0], E[0, 1], E[1, 1]))
+        project_psd_face_planar(hess, g, F, _strongly_compressed(E[0, 0], E[0, 1], E[1, 1]))
     return energy
 
 
