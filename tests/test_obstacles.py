@@ -130,3 +130,18 @@ def test_display_meshes_are_valid():
         assert np.all(np.isfinite(v)) and f.min() >= 0 and f.max() < len(v)
         if not isinstance(ob, Plane):  # every vertex lies on the surface
             assert np.abs(ob.query(v)[0]).max() < 1e-9
+
+
+def test_distance_alone_is_the_querys_phi():
+    """ObstacleSet.distance (the view-dependent contact floor's test) is query's phi, bit for bit:
+    capsules, a sphere and a plane, one of them spinning, and an empty set is inf."""
+    rng = np.random.default_rng(3)
+    obstacles = [Sphere((0.2, 0.0, 0.5), 0.3), Plane((0.0, 0.0, -0.2)),
+                 Capsule((0.0, 0.0, 0.0), (0.5, 0.2, 0.3), 0.1, motion=Spin((0.0, 0.0, 1.0), 2.0))]
+    bodies = ObstacleSet(obstacles)
+    bodies.set_time(0.3)
+    points = rng.normal(scale=0.6, size=(500, 3))
+    assert np.array_equal(bodies.distance(points), bodies.query(points)[0])
+    for ob in obstacles:
+        assert np.array_equal(ob.distance(points), ob.query(points)[0])
+    assert np.all(ObstacleSet([]).distance(points) == np.inf)

@@ -306,3 +306,49 @@ def test_screen_space_clamp_kernel_equals_eqs_5_to_8_in_numpy():
     assert np.all(np.abs(out - ref).max(axis=(1, 2)) <= CLAMP_KERNEL_RTOL * np.abs(ref).max(axis=(1, 2)))
     singular = np.zeros((1, 2, 2))  # seen edge-on: M kept
     assert np.array_equal(screen_space_clamp(M[:1], singular, l_min), M[:1])
+
+
+# The per-face kernels of the view-dependent sizing against their numpy definitions: the same
+# arithmetic up to the order of a few sums (BLAS's dot products, LU's inverse against the
+# adjugate), so a few ulps of each quantity's scale.
+VIEW_KERNEL_RTOL = 1e-12
+
+
+def test_per_face_view_kernels_equal_their_numpy_definitions():
+    """cloth.view.factors: face_geometry, face_view_data (Camera.distance_and_facing) and
+    material_to_screen_jacobian in one pass each, against the centroid mean, Mesh.world_face_normals,
+    Camera.distance_to_frustum with the facing test, and S = [p1 - p0, p2 - p0] Dm^-1 from
+    Camera.project, on a crumpled sheet seen from cameras inside, beside and behind it."""
+    from cloth.core.mesh import grid_mesh
+    from cloth.view.factors import face_geometry, face_view_data, material_to_screen_jacobian
+
+    rng = np.random.default_rng(7)
+    mesh = grid_mesh(1.2, 0.9, 12, 9)
+    mesh.node_x = mesh.node_x + rng.normal(scale=0.05, size=mesh.node_x.shape)
+    mesh.node_x[mesh.face_nodes[0, 1]] = mesh.node_x[mesh.face_nodes[0, 0]]  # a collapsed face
+    c, n = face_geometry(mesh)
+    assert np.abs(c - mesh.node_x[mesh.face_nodes].mean(axis=1)).max() <= VIEW_KERNEL_RTOL
+    assert np.abs(n - mesh.world_face_normals()).max() <= VIEW_KERNEL_RTOL
+    assert np.array_equal(n[0], np.zeros(3))
+    x = mesh.vert_x()
+    behind = inside = facing = 0
+    for position, target in (((0.6, -2.0, 1.0), (0.6, 0.45, 0.0)), ((0.6, 0.45, 0.05), (1.2, 0.45, 0.0)),
+                             ((3.0, 0.4, 0.1), (0.6, 0.45, 0.0)), ((0.6, -0.45, -1.5), (0.6, 0.45, 0.0))):
+        cam = Camera(position, target, (0.0, 0.0, 1.0), 50.0, 640, 360, near=0.1, far=2.5)
+        d, front = face_view_data(cam, c, n)
+        ref_d = cam.distance_to_frustum(c)
+        assert np.abs(d - ref_d).max() <= VIEW_KERNEL_RTOL * max(ref_d.max(), 1.0)
+        assert np.array_equal(front, np.einsum("ij,ij->i", n, cam.center - c) > 0.0)
+        inside += np.count_nonzero(d == 0)
+        facing += np.count_nonzero(front)
+        S = material_to_screen_jacobian(cam, mesh.vert_u, mesh.face_verts, x)
+        px, _ = cam.project(x)
+        p, u = px[mesh.face_verts], mesh.vert_u[mesh.face_verts]
+        ref = (np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]], -1)
+               @ np.linalg.inv(np.stack([u[:, 1] - u[:, 0], u[:, 2] - u[:, 0]], -1)))
+        assert np.array_equal(np.isnan(S), np.isnan(ref))
+        ok = ~np.isnan(ref)
+        behind += np.count_nonzero(~ok)
+        assert np.all(np.abs(S - ref)[ok] <= VIEW_KERNEL_RTOL * np.abs(ref[ok]).max())
+    assert behind > 0  # the camera inside the sheet has verts behind it
+    assert 0 < inside < 4 * len(c) and 0 < facing < 4 * len(c)  # both sides of both tests

@@ -107,6 +107,27 @@ def _plane_query(points, p0, n, phi, normal, closest):
 
 
 @njit(cache=True)
+def _capsules_distance(points, ends, radii, phi):
+    """phi of _capsules_query alone: the signed distance to the closest capsule."""
+    for i in range(points.shape[0]):
+        best = np.inf
+        x0, x1, x2 = points[i, 0], points[i, 1], points[i, 2]
+        for k in range(ends.shape[0]):
+            a0, a1, a2 = ends[k, 0, 0], ends[k, 0, 1], ends[k, 0, 2]
+            e0, e1, e2 = ends[k, 1, 0] - a0, ends[k, 1, 1] - a1, ends[k, 1, 2] - a2
+            ee = e0 * e0 + e1 * e1 + e2 * e2
+            s = 0.0
+            if ee > 0.0:
+                s = ((x0 - a0) * e0 + (x1 - a1) * e1 + (x2 - a2) * e2) / ee
+                s = min(max(s, 0.0), 1.0)
+            d0, d1, d2 = x0 - (a0 + s * e0), x1 - (a1 + s * e1), x2 - (a2 + s * e2)
+            value = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2) - radii[k]
+            if value < best:
+                best = value
+        phi[i] = best
+
+
+@njit(cache=True)
 def _capsules_query(points, ends, radii, phi, normal, closest, which, param):
     """Closest capsule to each point. A sphere is a capsule whose two ends coincide.
 
@@ -175,6 +196,10 @@ class Obstacle:
     def query(self, points: np.ndarray):
         """(phi (n,), outward normal (n,3), surface velocity (n,3)) at the closest points."""
         raise NotImplementedError
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """(n,) phi alone, as query's (an obstacle may compute it without normals or velocities)."""
+        return self.query(points)[0]
 
     def to_mesh(self, resolution: int = 16):
         """(vertices (k,3), faces (l,3)) triangle mesh at the current pose, for display."""
@@ -247,6 +272,11 @@ class CapsuleUnion(Obstacle):
         self.driven = True
         self.ends = np.ascontiguousarray(endpoints, dtype=np.float64).reshape(self.local_ends.shape)
         self.end_velocities = np.ascontiguousarray(endpoint_velocities, dtype=np.float64).reshape(self.local_ends.shape)
+
+    def distance(self, points):
+        phi = np.empty(points.shape[0])
+        _capsules_distance(np.ascontiguousarray(points, dtype=np.float64), self.ends, self.radii, phi)
+        return phi
 
     def query(self, points):
         n = points.shape[0]
@@ -343,6 +373,14 @@ class ObstacleSet:
         """Per-obstacle queries stacked: phi (K, n), normal (K, n, 3), velocity (K, n, 3)."""
         out = [ob.query(points) for ob in self.obstacles]
         return (np.stack([o[0] for o in out]), np.stack([o[1] for o in out]), np.stack([o[2] for o in out]))
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """(n,) query's phi alone: the signed distance to the nearest obstacle (inf with none)."""
+        phi = np.full(points.shape[0], np.inf)
+        for ob in self.obstacles:
+            d = ob.distance(points) if hasattr(ob, "distance") else ob.query(points)[0]
+            np.fmin(phi, d, out=phi)  # as query's `p < phi`: a NaN never wins
+        return phi
 
     def query(self, points: np.ndarray):
         n = points.shape[0]

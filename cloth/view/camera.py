@@ -84,6 +84,12 @@ class Camera:
         return self._pos
 
     @property
+    def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(center, right, up, forward), (3,) float64 each: the camera's frame in world
+        coordinates, for kernels that project many points (do not modify)."""
+        return self._pos, self._right, self._up, self._forward
+
+    @property
     def tan_half_fov(self) -> tuple[float, float]:
         """Tangents of the frustum's half-angles, (horizontal, vertical)."""
         return self._tan
@@ -148,6 +154,15 @@ class Camera:
         plane, sides, seg = _frustum_geometry(self._tan[0], self._tan[1], float(self.near), float(self.far))
         return _frustum_distance(cam, plane, sides, seg, self._tan[0], self._tan[1], float(self.near), float(self.far))
 
+    def distance_and_facing(self, points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """((N,) distance to the frustum as distance_to_frustum, (N,) bool: the normal points
+        towards the camera, n . (center - point) > 0), in one pass over the points."""
+        points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+        normals = np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 3)
+        plane, sides, seg = _frustum_geometry(self._tan[0], self._tan[1], float(self.near), float(self.far))
+        return _distance_and_facing(points, normals, self._pos, self._right, self._up, self._forward, plane, sides,
+                                    seg, self._tan[0], self._tan[1], float(self.near), float(self.far))
+
 
 @lru_cache(maxsize=64)
 def _frustum_geometry(tx: float, ty: float, near: float, far: float):
@@ -200,39 +215,58 @@ def _dot3(a, b):
 
 
 @njit(cache=True)
-def _frustum_distance(p, plane, sides, seg, tx, ty, near, far):
-    """Kernel of Camera.distance_to_frustum, all in camera coordinates (scalar code: no array
-    views in the loops)."""
-    n = p.shape[0]
-    out = np.empty(n)
-    for i in range(n):
-        px, py, pz = p[i, 0], p[i, 1], p[i, 2]
-        if near <= pz <= far and abs(px) <= tx * pz and abs(py) <= ty * pz:
-            out[i] = 0.0
+def _point_frustum_distance(px, py, pz, plane, sides, seg, tx, ty, near, far):
+    """Distance of one point in camera coordinates to the frustum (scalar code: no array views)."""
+    if near <= pz <= far and abs(px) <= tx * pz and abs(py) <= ty * pz:
+        return 0.0
+    best = np.inf
+    for f in range(6):
+        nx, ny, nz = plane[f, 1, 0], plane[f, 1, 1], plane[f, 1, 2]
+        h = (px - plane[f, 0, 0]) * nx + (py - plane[f, 0, 1]) * ny + (pz - plane[f, 0, 2]) * nz
+        if h <= 0.0 or h >= best:
             continue
-        best = np.inf
-        for f in range(6):
-            nx, ny, nz = plane[f, 1, 0], plane[f, 1, 1], plane[f, 1, 2]
-            h = (px - plane[f, 0, 0]) * nx + (py - plane[f, 0, 1]) * ny + (pz - plane[f, 0, 2]) * nz
-            if h <= 0.0 or h >= best:
-                continue
-            within = True
-            for k in range(4):  # the foot p - h n against each side's inward normal
-                s = ((px - h * nx - sides[f, k, 0, 0]) * sides[f, k, 1, 0]
-                     + (py - h * ny - sides[f, k, 0, 1]) * sides[f, k, 1, 1]
-                     + (pz - h * nz - sides[f, k, 0, 2]) * sides[f, k, 1, 2])
-                if s < 0.0:
-                    within = False
-                    break
-            if within:
-                best = h
-        for e in range(seg.shape[0]):
-            dx, dy, dz = px - seg[e, 0, 0], py - seg[e, 0, 1], pz - seg[e, 0, 2]
-            ax, ay, az = seg[e, 1, 0], seg[e, 1, 1], seg[e, 1, 2]
-            t = min(max((dx * ax + dy * ay + dz * az) / (ax * ax + ay * ay + az * az), 0.0), 1.0)
-            rx, ry, rz = dx - t * ax, dy - t * ay, dz - t * az
-            r2 = rx * rx + ry * ry + rz * rz
-            if r2 < best * best:
-                best = np.sqrt(r2)
-        out[i] = best
+        within = True
+        for k in range(4):  # the foot p - h n against each side's inward normal
+            s = ((px - h * nx - sides[f, k, 0, 0]) * sides[f, k, 1, 0]
+                 + (py - h * ny - sides[f, k, 0, 1]) * sides[f, k, 1, 1]
+                 + (pz - h * nz - sides[f, k, 0, 2]) * sides[f, k, 1, 2])
+            if s < 0.0:
+                within = False
+                break
+        if within:
+            best = h
+    for e in range(seg.shape[0]):
+        dx, dy, dz = px - seg[e, 0, 0], py - seg[e, 0, 1], pz - seg[e, 0, 2]
+        ax, ay, az = seg[e, 1, 0], seg[e, 1, 1], seg[e, 1, 2]
+        t = min(max((dx * ax + dy * ay + dz * az) / (ax * ax + ay * ay + az * az), 0.0), 1.0)
+        rx, ry, rz = dx - t * ax, dy - t * ay, dz - t * az
+        r2 = rx * rx + ry * ry + rz * rz
+        if r2 < best * best:
+            best = np.sqrt(r2)
+    return best
+
+
+@njit(cache=True)
+def _frustum_distance(p, plane, sides, seg, tx, ty, near, far):
+    """Kernel of Camera.distance_to_frustum, all in camera coordinates."""
+    out = np.empty(p.shape[0])
+    for i in range(p.shape[0]):
+        out[i] = _point_frustum_distance(p[i, 0], p[i, 1], p[i, 2], plane, sides, seg, tx, ty, near, far)
     return out
+
+
+@njit(cache=True)
+def _distance_and_facing(points, normals, pos, right, up, forward, plane, sides, seg, tx, ty, near, far):
+    """Kernel of Camera.distance_and_facing: each point taken to camera coordinates, its distance
+    to the frustum, and whether its normal points towards the camera."""
+    n = points.shape[0]
+    d = np.empty(n)
+    front = np.empty(n, dtype=np.bool_)
+    for i in range(n):
+        q0, q1, q2 = points[i, 0] - pos[0], points[i, 1] - pos[1], points[i, 2] - pos[2]
+        px = q0 * right[0] + q1 * right[1] + q2 * right[2]
+        py = q0 * up[0] + q1 * up[1] + q2 * up[2]
+        pz = q0 * forward[0] + q1 * forward[1] + q2 * forward[2]
+        d[i] = _point_frustum_distance(px, py, pz, plane, sides, seg, tx, ty, near, far)
+        front[i] = -(normals[i, 0] * q0 + normals[i, 1] * q1 + normals[i, 2] * q2) > 0.0
+    return d, front

@@ -162,9 +162,7 @@ def face_view_data(camera: Camera, centroids: np.ndarray, normals: np.ndarray):
     A face is front-facing when its normal points towards the camera; the cloth is thin, so
     which side is "front" is the side the face normal (counter-clockwise in material space) is on.
     """
-    d = camera.distance_to_frustum(centroids)
-    front = np.einsum("ij,ij->i", normals, camera.center - centroids) > 0.0
-    return d, front
+    return camera.distance_and_facing(centroids, normals)
 
 
 def material_to_screen_jacobian(camera: Camera, vert_u: np.ndarray, face_verts: np.ndarray,
@@ -174,16 +172,67 @@ def material_to_screen_jacobian(camera: Camera, vert_u: np.ndarray, face_verts: 
     From the three projected verts: S = [p1 - p0, p2 - p0] [u1 - u0, u2 - u0]^-1. Faces with a
     vert behind the camera get NaN (they are not visible).
     """
-    px, depth = camera.project(vert_x.reshape(-1, 3))
-    px = px.reshape(vert_x.shape[0], 2)
-    p = px[face_verts]
-    u = vert_u[face_verts]
-    Ds = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]], axis=-1)
-    Dm = np.stack([u[:, 1] - u[:, 0], u[:, 2] - u[:, 0]], axis=-1)
-    return Ds @ np.linalg.inv(Dm)
+    return _screen_jacobians(np.ascontiguousarray(vert_x, dtype=np.float64).reshape(-1, 3),
+                             np.ascontiguousarray(vert_u, dtype=np.float64),
+                             np.ascontiguousarray(face_verts, dtype=np.int64), *camera.basis,
+                             float(camera.focal_px), camera.width / 2.0, camera.height / 2.0)
+
+
+@njit(cache=True)
+def _screen_jacobians(vert_x, vert_u, face_verts, pos, right, up, forward, focal, cx, cy):
+    """Kernel of material_to_screen_jacobian: each face's verts projected as Camera.project does
+    (NaN at or behind the camera plane), then [p1 - p0, p2 - p0] Dm^-1 with Dm^-1 in closed form."""
+    F = face_verts.shape[0]
+    out = np.empty((F, 2, 2))
+    px = np.empty(3)
+    py = np.empty(3)
+    for f in range(F):
+        for k in range(3):
+            v = face_verts[f, k]
+            q0, q1, q2 = vert_x[v, 0] - pos[0], vert_x[v, 1] - pos[1], vert_x[v, 2] - pos[2]
+            depth = q0 * forward[0] + q1 * forward[1] + q2 * forward[2]
+            if depth <= 0.0:
+                px[k], py[k] = np.nan, np.nan
+            else:
+                px[k] = cx + focal * (q0 * right[0] + q1 * right[1] + q2 * right[2]) / depth
+                py[k] = cy - focal * (q0 * up[0] + q1 * up[1] + q2 * up[2]) / depth
+        a, b, c = face_verts[f, 0], face_verts[f, 1], face_verts[f, 2]
+        m00, m01 = vert_u[b, 0] - vert_u[a, 0], vert_u[c, 0] - vert_u[a, 0]
+        m10, m11 = vert_u[b, 1] - vert_u[a, 1], vert_u[c, 1] - vert_u[a, 1]
+        det = m00 * m11 - m01 * m10
+        i00, i01, i10, i11 = m11 / det, -m01 / det, -m10 / det, m00 / det
+        d00, d01 = px[1] - px[0], px[2] - px[0]
+        d10, d11 = py[1] - py[0], py[2] - py[0]
+        out[f, 0, 0] = d00 * i00 + d01 * i10
+        out[f, 0, 1] = d00 * i01 + d01 * i11
+        out[f, 1, 0] = d10 * i00 + d11 * i10
+        out[f, 1, 1] = d10 * i01 + d11 * i11
+    return out
 
 
 def face_geometry(mesh):
-    """(centroids (F, 3), unit normals (F, 3)) of the faces in world space."""
-    x = mesh.node_x[mesh.face_nodes]
-    return x.mean(axis=1), mesh.world_face_normals()
+    """(centroids (F, 3), unit normals (F, 3); zero for a collapsed face) of the faces in world space."""
+    return _centroids_and_normals(mesh.node_x, mesh.face_nodes)
+
+
+@njit(cache=True)
+def _centroids_and_normals(node_x, face_nodes):
+    """Kernel of face_geometry: the same arithmetic as the mean of the three nodes and as
+    cloth.core.mesh.Mesh.world_face_normals."""
+    F = face_nodes.shape[0]
+    c = np.empty((F, 3))
+    n = np.empty((F, 3))
+    for f in range(F):
+        a, b, d = face_nodes[f, 0], face_nodes[f, 1], face_nodes[f, 2]
+        for k in range(3):
+            c[f, k] = (node_x[a, k] + node_x[b, k] + node_x[d, k]) / 3.0
+        e10, e11, e12 = node_x[b, 0] - node_x[a, 0], node_x[b, 1] - node_x[a, 1], node_x[b, 2] - node_x[a, 2]
+        e20, e21, e22 = node_x[d, 0] - node_x[a, 0], node_x[d, 1] - node_x[a, 1], node_x[d, 2] - node_x[a, 2]
+        n0 = e11 * e22 - e12 * e21
+        n1 = e12 * e20 - e10 * e22
+        n2 = e10 * e21 - e11 * e20
+        ln = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        if not ln > 0.0:
+            ln = 1.0
+        n[f, 0], n[f, 1], n[f, 2] = n0 / ln, n1 / ln, n2 / ln
+    return c, n

@@ -200,7 +200,7 @@ class ViewDependentRemesher(AdaptiveRemesher):
         n = int(np.ceil(self.view.anticipation_frames * self.view.samples_per_frame))
         return np.linspace(0.0, T, n + 1)
 
-    def view_factors(self, mesh, t: float, occluders: Occluders | None = None):
+    def view_factors(self, mesh, t: float, occluders: Occluders | None = None, geometry=None):
         """(nu (F,), visible (F,), in_frame (F,), front (F,), occluded (F,)) for the mesh at remesh
         time t. With `occluders` (view.occlusion on), a face in frame and front-facing that they or
         the cloth hide counts as back-facing for eq 3, at each tau sample's camera (module
@@ -210,8 +210,9 @@ class ViewDependentRemesher(AdaptiveRemesher):
         With several cameras (cloth.view.paths.CameraRig, beyond the paper) eqs 3-4 are taken per
         camera, each over its own path, and a face's view factor is the largest of them; `visible`
         and `in_frame` hold in any camera, `front` and `occluded` are the main camera's. Each
-        camera's visible faces are kept (`self.seen`, by camera name) for the screen-space clamp."""
-        c, n = face_geometry(mesh)
+        camera's visible faces are kept (`self.seen`, by camera name) for the screen-space clamp.
+        `geometry`: the mesh's face_geometry, if the caller has it."""
+        c, n = face_geometry(mesh) if geometry is None else geometry
         tested = {}  # camera_key -> occluded (F,) bool: a static shot is tested once
         self.seen = {}
         nu = in_frame = front0 = hidden0 = None
@@ -276,12 +277,13 @@ class ViewDependentRemesher(AdaptiveRemesher):
         M = super().face_sizing(sim)
         mesh = sim.mesh
         occluders = self.occluders(sim) if self.view.occlusion else None
-        nu, visible, in_frame, front, occluded = self.view_factors(mesh, sim.time, occluders)
+        geometry = face_geometry(mesh)
+        nu, visible, in_frame, front, occluded = self.view_factors(mesh, sim.time, occluders, geometry)
         M = scale_sizing(M, nu)
         if visible.any():
             M = self.clamp_on_screen(M, mesh, sim.time + self.frame_time if self.view.anticipation else sim.time)
         if self.view.contact_size is not None and sim.contact is not None:
-            M = self.contact_floor(M, sim)
+            M = self.contact_floor(M, sim, geometry[0])
         self.last = {"view_factor_min": float(nu.min()), "view_factor_mean": float(nu.mean()),
                      "view_factor_max": float(nu.max()), "faces_occluded": int(np.count_nonzero(occluded))}
         if len(self.seen) > 1:  # a rig: the faces each camera's sizing saw (cloth.view.paths.CameraRig)
@@ -309,7 +311,7 @@ class ViewDependentRemesher(AdaptiveRemesher):
             out[seen[finer]], best[seen[finer]] = Mc[finer], det[finer]
         return out
 
-    def contact_floor(self, M: np.ndarray, sim) -> np.ndarray:
+    def contact_floor(self, M: np.ndarray, sim, centroids: np.ndarray | None = None) -> np.ndarray:
         """Near obstacles, sizes no coarser than view.contact_size: eigenvalues of M raised to at
         least contact_size^-2 on faces whose centroid is within view.contact_distance of one.
 
@@ -321,7 +323,7 @@ class ViewDependentRemesher(AdaptiveRemesher):
         """
         mesh = sim.mesh
         sim.obstacle_set.set_time(sim.time)
-        phi = sim.obstacle_set.query(mesh.node_x[mesh.face_nodes].mean(axis=1))[0]
+        phi = sim.obstacle_set.distance(face_geometry(mesh)[0] if centroids is None else centroids)
         near = phi < self.view.contact_distance
         if near.any():
             floor = 1.0 / self.view.contact_size ** 2
