@@ -38,7 +38,8 @@ A benchmark, not a test: it prints ratios measured in one run and writes
 `<out>/<timestamp>/steps.csv` (default out: results/benchmark) (one row per resolution: seconds per step by phase,
 microseconds per face per step, the share of step time outside compiled kernels and the
 linear solver) and `summary.json` (the growth exponent of time with faces, from a log-log fit,
-and the solver that ran).
+and the solver that ran). `--report PAGE.md` (the sheet and `--modes`) writes the printed tables
+as a Markdown page stamped with the commit, the machine and the command (docs/benchmark.md).
 
 Time inside compiled kernels is measured by wrapping every numba dispatcher that the Python
 layer calls outside the linear solve (the wrappers add about a microsecond per call, a few dozen
@@ -296,6 +297,9 @@ def main(argv=None) -> None:
     parser.add_argument("--against", default=None, metavar="REV",
                         help="time commit REV's benchmark on the same sheets in the same run and print the speed-up")
     parser.add_argument("--out", type=Path, default=Path("results/benchmark"))
+    parser.add_argument("--report", type=Path, default=None, metavar="PAGE.md",
+                        help="also write the tables as a Markdown page with the commit, machine and command "
+                             "(docs/benchmark.md, docs/benchmark_modes.md)")
     parser.add_argument("--modes", action="store_true", help="the three modes at matched mean faces, per phase")
     parser.add_argument("--scene", default=None,
                         help="--modes: the scene (conf/scene/; default sheet_on_sphere); without --modes: time this "
@@ -306,6 +310,7 @@ def main(argv=None) -> None:
     parser.add_argument("--scale", default="small", choices=("small", "paper"), help="--modes: the scene's preset")
     parser.add_argument("overrides", nargs="*", help="--modes, --scene: more config overrides (key=value)")
     args = parser.parse_args(argv)
+    args.command = "python -m experiments.benchmark " + " ".join(sys.argv[1:] if argv is None else argv)
     if args.scene is not None and args.scene.endswith(".json") and not Path(args.scene).expanduser().is_file():
         parser.error(f"--scene {args.scene!r}: no such ARCSim configuration")
     if args.scene is None and args.overrides and not args.modes:
@@ -356,6 +361,15 @@ def main(argv=None) -> None:
         write_json_atomic(out_dir / "summary.json", summary)
         print(f"adaptive / fixed at matched faces: {frame_ratio:.2f}x frame time ({ratio:.2f}x per face and step); "
               f"results in {out_dir}")
+        if args.report is not None:
+            table = df[["mode", "faces_mean", "s_per_frame", *phases, "us_per_face_step"]].rename(
+                columns=lambda c: c.replace("_us_per_face_step", ""))
+            write_report(args.report, "The three modes at matched faces",
+                         f"`{args.scene}` (scale={args.scale}), microseconds per face per implicit step by phase "
+                         f"over {frames} timed frames after {warmup}; the fixed mesh's resolution set so that its "
+                         f"mean faces equal adaptive's, the view-dependent mode with camera `{args.camera}`. "
+                         f"Adaptive over the fixed mesh: {frame_ratio:.2f}x frame time, {ratio:.2f}x per face and "
+                         "step.", [("Per face per step (us)", table)], summary["manifest"], args.command)
         return
     if args.scene is not None:
         args.frames, args.warmup = frames, warmup
@@ -389,6 +403,7 @@ def main(argv=None) -> None:
             parts = ", ".join(f"{k[:-len('_speedup')]} {v:.2f}x" for k, v in compared.items() if k.endswith("_speedup"))
             print(f"{args.against} / this tree, per face per step: {parts}")
         return
+    args.frames, args.warmup = frames, warmup
     rows, compared = [], []
     with tempfile.TemporaryDirectory(prefix="cloth-against-") as tmp:
         src = export_revision(against, Path(tmp) / against[:12]) if against else None
@@ -424,6 +439,47 @@ def _finish_resolutions(rows, compared, args, against, hessians, solver, out_dir
         summary["against"] = {"rev": args.against, "commit": against, "rows": compared}
     write_json_atomic(out_dir / "summary.json", summary)
     print(f"time grows as faces^{slope:.2f} (1.00 = linear; {hessians[0]} Hessian); results in {out_dir}")
+    if args.report is not None:
+        what = (f"`sheet_on_sphere` at {', '.join(f'{r:,}' for r in df['faces'].unique())} faces ({args.frames} timed "
+                f"frames after {args.warmup}), solver {summary['solver']}"
+                + (f"; time grows as faces^{slope:.2f}." if np.isfinite(slope) else "."))
+        if against is not None:
+            what += (f" Against `{args.against}` ({against[:12]}): its own benchmark, run just before this tree's "
+                     "at each size.")
+        write_report(args.report, "Time per face per implicit step", what, sheet_tables(rows, compared),
+                     summary["manifest"], args.command)
+
+
+def sheet_tables(rows: list[dict], compared: list[dict]) -> list[tuple[str, pd.DataFrame]]:
+    """The sheet benchmark's report tables: microseconds per face per step by phase, and with
+    --against the previous commit's time over this tree's by phase."""
+    per_face = pd.DataFrame([{"faces": r["faces"], "bending_hessian": r["bending_hessian"], "solver": r["solver"],
+                              **{p: 1e6 * r[f"{p}_s_per_step"] / r["faces"] for p in SIM_PHASES},
+                              "all": r["us_per_face_per_step"], "ms_per_step": 1e3 * r["s_per_step"]} for r in rows])
+    tables = [("Per face per step (us)", per_face)]
+    if compared:
+        tables.append(("Previous commit's time over this tree's (above 1: this tree is faster)",
+                       pd.DataFrame([{"faces": c["faces"], "step": c["speedup"],
+                                      **{p: c[f"{p}_speedup"] for p in SIM_PHASES if f"{p}_speedup" in c}}
+                                     for c in compared])))
+    return tables
+
+
+def write_report(path: Path, title: str, what: str, tables: list[tuple[str, pd.DataFrame]], manifest: dict,
+                 command: str) -> None:
+    """A benchmark's tables as a Markdown page, stamped with the commit, the machine and the command."""
+    from experiments.analysis.tables import markdown  # noqa: PLC0415 - import cost: --report only
+
+    dirty = " (with uncommitted changes)" if manifest.get("git_dirty") else ""
+    lines = [f"# {title}", "",
+             f"Measured at commit `{manifest.get('git_commit')}`{dirty}, {manifest.get('timestamp_utc')}, on "
+             f"{manifest.get('cpu_model')}, {manifest.get('cpu_count')} cores, {manifest.get('numba_threads')} numba "
+             f"thread(s): `{command}`. A benchmark on a "
+             "shared machine: compare the ratios measured in one run, not times across pages.", "", what, ""]
+    for heading, table in tables:
+        lines += [f"## {heading}", "", markdown(table)]
+    write_text_atomic(path, "\n".join(lines))
+    print(f"report in {path}")
 
 
 def _print_row(row: dict, name_hessian: bool) -> None:

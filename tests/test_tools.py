@@ -16,8 +16,10 @@ def _only_child(path):
 
 def test_benchmark_writes_time_per_step_by_phase(tmp_path):
     from experiments.benchmark import main
-    main(["--resolutions", "4", "6", "--frames", "1", "--warmup", "1", "--out", str(tmp_path)])
-    out = _only_child(tmp_path)
+    page = tmp_path / "benchmark.md"
+    main(["--resolutions", "4", "6", "--frames", "1", "--warmup", "1", "--out", str(tmp_path / "out"),
+          "--report", str(page)])
+    out = _only_child(tmp_path / "out")
     steps = pd.read_csv(out / "steps.csv")
     assert list(steps.faces) == [2 * 4 * 4, 2 * 6 * 6]
     for col in ("s_per_step", "physics_s_per_step", "solve_s_per_step", "collisions_s_per_step",
@@ -29,6 +31,11 @@ def test_benchmark_writes_time_per_step_by_phase(tmp_path):
     assert set(steps.solver) <= {"cholesky", "pcg"} and (steps.solves_capped == 0).all()
     from cloth.physics.linsolve import BENDING_HESSIAN_DEFAULT
     assert set(steps.bending_hessian) == {BENDING_HESSIAN_DEFAULT}  # the solver's default, as a run's
+    text = page.read_text()  # --report: the per-face table, stamped with the code and the command
+    from cloth.io.manifest import code_version
+    assert code_version()["git_commit"] in text and "--resolutions 4 6" in text
+    assert "| faces | bending_hessian | solver | sizing | remesh | physics | solve | collisions | all |" in text
+    assert "| 32 |" in text and "| 72 |" in text
 
 
 def test_benchmark_times_both_bending_hessians_on_the_same_sheet(tmp_path, capsys):
