@@ -107,27 +107,6 @@ def _plane_query(points, p0, n, phi, normal, closest):
 
 
 @njit(cache=True)
-def _capsules_distance(points, ends, radii, phi):
-    """phi of _capsules_query alone: the signed distance to the closest capsule."""
-    for i in range(points.shape[0]):
-        best = np.inf
-        x0, x1, x2 = points[i, 0], points[i, 1], points[i, 2]
-        for k in range(ends.shape[0]):
-            a0, a1, a2 = ends[k, 0, 0], ends[k, 0, 1], ends[k, 0, 2]
-            e0, e1, e2 = ends[k, 1, 0] - a0, ends[k, 1, 1] - a1, ends[k, 1, 2] - a2
-            ee = e0 * e0 + e1 * e1 + e2 * e2
-            s = 0.0
-            if ee > 0.0:
-                s = ((x0 - a0) * e0 + (x1 - a1) * e1 + (x2 - a2) * e2) / ee
-                s = min(max(s, 0.0), 1.0)
-            d0, d1, d2 = x0 - (a0 + s * e0), x1 - (a1 + s * e1), x2 - (a2 + s * e2)
-            value = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2) - radii[k]
-            if value < best:
-                best = value
-        phi[i] = best
-
-
-@njit(cache=True)
 def _capsules_query(points, ends, radii, phi, normal, closest, which, param):
     """Closest capsule to each point. A sphere is a capsule whose two ends coincide.
 
@@ -273,9 +252,11 @@ class CapsuleUnion(Obstacle):
         self.ends = np.ascontiguousarray(endpoints, dtype=np.float64).reshape(self.local_ends.shape)
         self.end_velocities = np.ascontiguousarray(endpoint_velocities, dtype=np.float64).reshape(self.local_ends.shape)
 
-    def distance(self, points):
-        phi = np.empty(points.shape[0])
-        _capsules_distance(np.ascontiguousarray(points, dtype=np.float64), self.ends, self.radii, phi)
+    def distance(self, points):  # query's kernel, without the surface velocities
+        n = points.shape[0]
+        phi, normal, closest = self._alloc(n)
+        _capsules_query(np.ascontiguousarray(points, dtype=np.float64), self.ends, self.radii,
+                        phi, normal, closest, np.empty(n, dtype=np.int64), np.empty(n))
         return phi
 
     def query(self, points):

@@ -125,6 +125,29 @@ def project_psd(H, absolute=False):
 
 
 @njit(cache=True)
+def _whitened_rows(g):
+    """h = g Gm^-1/2 (3, 2; orthonormal columns) with Gm = g^T g, or None for a degenerate rest face
+    (Gm not positive definite): the face projections' basis of the deformations."""
+    p, q, r = 0.0, 0.0, 0.0
+    for a in range(3):
+        p += g[a, 0] * g[a, 0]
+        q += g[a, 0] * g[a, 1]
+        r += g[a, 1] * g[a, 1]
+    l1, l2, q1, q2 = _eig_sym2(p, q, r)
+    if not l2 > 0.0:
+        return None
+    s1, s2 = 1.0 / np.sqrt(l1), 1.0 / np.sqrt(l2)
+    r00 = s1 * q1[0] * q1[0] + s2 * q2[0] * q2[0]  # Gm^-1/2
+    r01 = s1 * q1[0] * q1[1] + s2 * q2[0] * q2[1]
+    r11 = s1 * q1[1] * q1[1] + s2 * q2[1] * q2[1]
+    h = np.empty((3, 2))
+    for a in range(3):
+        h[a, 0] = g[a, 0] * r00 + g[a, 1] * r01
+        h[a, 1] = g[a, 0] * r01 + g[a, 1] * r11
+    return h
+
+
+@njit(cache=True)
 def project_psd_face(hess, g, absolute=False):
     """:func:`project_psd` of a face's Hessian (9, 9), done on a 6x6 matrix: the same result to
     round-off, at a fraction of the eigen-decomposition's work.
@@ -136,23 +159,10 @@ def project_psd_face(hess, g, absolute=False):
     the complement of the translations, and the Hessian is Q M Q^T with M = Q^T H Q (6x6). Its
     eigenpairs are M's, mapped by Q, and three zeros (the translations): projecting M and mapping
     back is projecting H."""
-    p, q, r = 0.0, 0.0, 0.0
-    for a in range(3):
-        p += g[a, 0] * g[a, 0]
-        q += g[a, 0] * g[a, 1]
-        r += g[a, 1] * g[a, 1]
-    l1, l2, q1, q2 = _eig_sym2(p, q, r)
-    if not l2 > 0.0:  # a degenerate rest face: no reduction
+    h = _whitened_rows(g)
+    if h is None:  # a degenerate rest face: no reduction
         project_psd(hess, absolute)
         return
-    s1, s2 = 1.0 / np.sqrt(l1), 1.0 / np.sqrt(l2)
-    r00 = s1 * q1[0] * q1[0] + s2 * q2[0] * q2[0]  # Gm^-1/2
-    r01 = s1 * q1[0] * q1[1] + s2 * q2[0] * q2[1]
-    r11 = s1 * q1[1] * q1[1] + s2 * q2[1] * q2[1]
-    h = np.empty((3, 2))
-    for a in range(3):
-        h[a, 0] = g[a, 0] * r00 + g[a, 1] * r01
-        h[a, 1] = g[a, 0] * r01 + g[a, 1] * r11
     # T[3a + i, 2j + l] = sum_b H[3a + i, 3b + j] h[b, l]  (H Q), then M = Q^T T
     T = np.empty((9, 6))
     for row in range(9):
@@ -226,13 +236,8 @@ def project_psd_face_planar(hess, g, F, absolute=False):
     n1 = F[2, 0] * F[0, 1] - F[0, 0] * F[2, 1]
     n2 = F[0, 0] * F[1, 1] - F[1, 0] * F[0, 1]
     nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-    p, q, r = 0.0, 0.0, 0.0
-    for a in range(3):
-        p += g[a, 0] * g[a, 0]
-        q += g[a, 0] * g[a, 1]
-        r += g[a, 1] * g[a, 1]
-    l1, l2, e1, e2 = _eig_sym2(p, q, r)
-    if not (nn > 0.0 and np.isfinite(nn) and l2 > 0.0):
+    h = _whitened_rows(g)
+    if h is None or not (nn > 0.0 and np.isfinite(nn)):
         project_psd_face(hess, g, absolute)
         return
     frame = np.empty((3, 3))  # rows t1, t2, n
@@ -243,14 +248,6 @@ def project_psd_face_planar(hess, g, F, absolute=False):
     frame[1, 0] = frame[2, 1] * frame[0, 2] - frame[2, 2] * frame[0, 1]
     frame[1, 1] = frame[2, 2] * frame[0, 0] - frame[2, 0] * frame[0, 2]
     frame[1, 2] = frame[2, 0] * frame[0, 1] - frame[2, 1] * frame[0, 0]
-    s1, s2 = 1.0 / np.sqrt(l1), 1.0 / np.sqrt(l2)
-    r00 = s1 * e1[0] * e1[0] + s2 * e2[0] * e2[0]  # Gm^-1/2
-    r01 = s1 * e1[0] * e1[1] + s2 * e2[0] * e2[1]
-    r11 = s1 * e1[1] * e1[1] + s2 * e2[1] * e2[1]
-    h = np.empty((3, 2))
-    for a in range(3):
-        h[a, 0] = g[a, 0] * r00 + g[a, 1] * r01
-        h[a, 1] = g[a, 0] * r01 + g[a, 1] * r11
     W = np.empty((9, 6))  # orthonormal columns h[:, k] (x) frame[c], column 2c + k
     for a in range(3):
         for i in range(3):
