@@ -8,13 +8,16 @@ import pytest
 from cloth.scenes.character import (
     CAPSULE_NAMES,
     CAPSULE_RADII,
+    CAPSULES,
     HEIGHT,
     JOINTS,
+    SKELETON,
     Dance,
     Karate,
     Mannequin,
     Pose,
     capsule_endpoints,
+    forward_kinematics,
     make_motion,
 )
 
@@ -29,6 +32,32 @@ VELOCITY_TOL = 1e-3
 # a kick, the blend-in of the raised arms), at speed s below s^2 times that. A jump (a kink in a
 # joint-angle curve) would show as a change of the order of the velocity itself (metres/second).
 MAX_DV_PER_MS = 0.2
+# The kernel's forward kinematics against the numpy definition: 3x3 products summed in another
+# order (BLAS against the kernel's loops), a few ulps of 1 m through a chain of 5 joints.
+FK_KERNEL_ATOL = 1e-14
+
+
+def _rot_numpy(angles):
+    ax, ay, az = angles
+    cx, sx, cy, sy, cz, sz = np.cos(ax), np.sin(ax), np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
+    Rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+def _forward_kinematics_numpy(pose):
+    """The definition: each joint's frame is its parent's times its own rotation, its position
+    the parent's plus the parent's rotation of its rest offset; the root turned by the heading."""
+    out = {}
+    for name, (parent, offset) in SKELETON.items():
+        R_own = _rot_numpy(pose.angles.get(name, (0.0, 0.0, 0.0)))
+        if parent is None:
+            out[name] = (_rot_numpy((0.0, 0.0, pose.heading)) @ R_own, np.asarray(offset, float) + pose.root)
+        else:
+            Rp, pp = out[parent]
+            out[name] = (Rp @ R_own, pp + Rp @ np.asarray(offset, float))
+    return out
 
 
 def test_rest_pose_has_human_proportions():
@@ -46,6 +75,35 @@ def test_rest_pose_has_human_proportions():
         np.linalg.norm(ends[k["lower_arm_r"], 1] - ends[k["lower_arm_r"], 0])
     assert 0.48 * HEIGHT < leg + 0.06 < 0.56 * HEIGHT  # leg length ~ half the height
     assert 0.30 * HEIGHT < arm < 0.36 * HEIGHT
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_forward_kinematics_kernel_equals_its_numpy_definition(seed):
+    rng = np.random.default_rng(seed)
+    moved = [j for j in JOINTS if rng.uniform() < 0.6]  # some joints at rest, the root among either
+    pose = Pose(rng.normal(size=3), rng.uniform(-np.pi, np.pi), {j: tuple(rng.uniform(-2, 2, 3)) for j in moved})
+    frames, want = forward_kinematics(pose), _forward_kinematics_numpy(pose)
+    for name in JOINTS:
+        assert np.allclose(frames[name][0], want[name][0], rtol=0, atol=FK_KERNEL_ATOL), name
+        assert np.allclose(frames[name][1], want[name][1], rtol=0, atol=FK_KERNEL_ATOL), name
+    ends = capsule_endpoints(pose)
+    for k, (joint, a, b, _) in enumerate(CAPSULES.values()):
+        R, p = want[joint]
+        assert np.allclose(ends[k], [p + R @ np.asarray(a), p + R @ np.asarray(b)], rtol=0, atol=FK_KERNEL_ATOL)
+    assert np.array_equal(capsule_endpoints(pose, frames), ends)  # from precomputed frames: the same
+
+
+def test_mannequin_endpoints_follow_its_joint_frames():
+    body = Mannequin(Dance(), position=(0.3, -0.2, 0.0), heading=0.7, phase=0.2)
+    for t in (0.0, 0.9, 1.7, 1.7):  # the last again: from the cache
+        R, p = body.joint_frames_at(t)
+        frames = body.frames_at(t)
+        assert all(np.array_equal(frames[n][0], R[j]) and np.array_equal(frames[n][1], p[j])
+                   for j, n in enumerate(JOINTS))
+        c, s = np.cos(0.7), np.sin(0.7)
+        place = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        want = capsule_endpoints(body.pose_at(t)) @ place.T + np.array([0.3, -0.2, 0.0])
+        assert np.allclose(body.endpoints_at(t), want, rtol=0, atol=FK_KERNEL_ATOL)
 
 
 def test_forward_kinematics_is_rigid_per_segment():
@@ -150,32 +208,22 @@ def test_a_mannequin_posed_again_at_a_time_it_kept_is_posed_exactly_as_anew():
     assert len(cached._posed) == POSED_CACHE
 
 
-def test_forward_kinematics_skips_rest_joints_and_caches_by_time_with_the_same_numbers():
-    """A joint at rest takes its parent's rotation without the product by the identity, and the
-    mannequin keeps each time's kinematics for its contact and its garments' handles: the numbers
-    are those of the plain product chain, to the last bit."""
-    from cloth.scenes.character import SKELETON, _rot, forward_kinematics
-
-    def plain(pose):  # every joint's rotation multiplied in, rest or not
-        out = {}
-        for name, (parent, offset) in SKELETON.items():
-            R_local = _rot(pose.angles.get(name, (0.0, 0.0, 0.0)))
-            if parent is None:
-                out[name] = (_rot((0.0, 0.0, pose.heading)) @ R_local,
-                             np.asarray(offset, float) + np.asarray(pose.root, float))
-            else:
-                Rp, pp = out[parent]
-                out[name] = (Rp @ R_local, pp + Rp @ np.asarray(offset, float))
-        return out
-
+def test_forward_kinematics_of_the_motions_and_its_cache_by_time():
+    """The motions' poses leave joints at rest (their rotation is the parent's, no product by the
+    identity), and the mannequin keeps each time's kinematics for its contact and its garments'
+    handles: the numbers of the product chain (the numpy definition, to FK_KERNEL_ATOL), and of
+    the cache the same to the last bit."""
     body = Mannequin(Karate(), position=(1.0, 2.0, 0.0), heading=0.7)
     for t in np.linspace(0.0, 6.0, 31):
         pose = body.pose_at(t)
         assert any(not any(a) for a in pose.angles.values()) or len(pose.angles) < len(SKELETON)
-        fast, slow = forward_kinematics(pose), plain(pose)
+        fast, slow = forward_kinematics(pose), _forward_kinematics_numpy(pose)
         for name in SKELETON:
-            assert np.array_equal(fast[name][0], slow[name][0]) and np.array_equal(fast[name][1], slow[name][1])
+            assert np.allclose(fast[name][0], slow[name][0], rtol=0, atol=FK_KERNEL_ATOL)
+            assert np.allclose(fast[name][1], slow[name][1], rtol=0, atol=FK_KERNEL_ATOL)
+        assert body.joint_frames_at(t) is body.joint_frames_at(t)
         cached = body.frames_at(t)
-        assert body.frames_at(t) is cached and all(np.array_equal(cached[k][0], fast[k][0]) for k in SKELETON)
+        assert all(np.array_equal(cached[k][0], fast[k][0]) and np.array_equal(cached[k][1], fast[k][1])
+                   for k in SKELETON)
         assert np.array_equal(body.endpoints_at(t), capsule_endpoints(pose) @ np.array(
             [[np.cos(0.7), np.sin(0.7), 0.0], [-np.sin(0.7), np.cos(0.7), 0.0], [0.0, 0.0, 1.0]]) + [1.0, 2.0, 0.0])

@@ -9,7 +9,7 @@ import trimesh.creation
 
 from cloth.collision.meshobstacle import TriangleMeshObstacle
 from cloth.collision.obstacles import capsule_tessellation
-from cloth.scenes.character import CAPSULES, JOINTS, forward_kinematics, motion_time
+from cloth.scenes.character import CAPSULES, JOINTS, joint_frames, motion_time
 
 
 # procedural meshes
@@ -49,9 +49,8 @@ class SkinnedMannequin:
         self.faces = np.vstack(faces)
 
     def __call__(self, t: float) -> np.ndarray:
-        frames = forward_kinematics(self.motion.pose(motion_time(t, self.phase)))
-        R = np.stack([frames[j][0] for j in JOINTS])[self.vert_joint]
-        p = np.stack([frames[j][1] for j in JOINTS])[self.vert_joint]
+        R, p = joint_frames(self.motion.pose(motion_time(t, self.phase)))
+        R, p = R[self.vert_joint], p[self.vert_joint]
         x = np.einsum("vij,vj->vi", R, self.local) + p
         c, s = np.cos(self.heading), np.sin(self.heading)
         place = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])

@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from cloth.collision.obstacles import CapsuleUnion
 
@@ -75,12 +76,69 @@ POSED_CACHE = 16
 
 def _rot(angles) -> np.ndarray:
     """Rz(az) Ry(ay) Rx(ax) for angles (ax, ay, az) in radians."""
-    ax, ay, az = angles
+    out = np.empty((3, 3))
+    _rot_into(float(angles[0]), float(angles[1]), float(angles[2]), out)
+    return out
+
+
+@njit(cache=True)
+def _rot_into(ax, ay, az, out):
+    """out = Rz(az) Ry(ay) Rx(ax) (3x3; writes `out`), products in the order of (Rz Ry) Rx."""
     cx, sx, cy, sy, cz, sz = np.cos(ax), np.sin(ax), np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
-    Rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-    return Rz @ Ry @ Rx
+    # Rz Ry = [[cz cy, -sz, cz sy], [sz cy, cz, sz sy], [-sy, 0, cy]], then times Rx
+    m = ((cz * cy, -sz, cz * sy), (sz * cy, cz, sz * sy), (-sy, 0.0, cy))
+    for i in range(3):
+        out[i, 0] = m[i][0]
+        out[i, 1] = m[i][1] * cx + m[i][2] * sx
+        out[i, 2] = -m[i][1] * sx + m[i][2] * cx
+
+
+@njit(cache=True)
+def _mat3_into(A, B, out):
+    """out = A B (3x3; writes `out`, which may not be A or B)."""
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
+
+
+@njit(cache=True)
+def _joint_frames(parent, offset, angles, moved, heading, root, R, p):
+    """World rotation R (J, 3, 3) and position p (J, 3) of every joint (writes R and p).
+
+    `parent` (J,) is each joint's parent's index (-1 for the root; parents come first),
+    `offset` (J, 3) the rest offsets, `angles` (J, 3) the joint angles and `moved` (J,) whether
+    any of them is nonzero: a joint at rest takes its parent's rotation as it is."""
+    Rj = np.empty((3, 3))
+    for j in range(parent.shape[0]):
+        q = parent[j]
+        if q < 0:
+            _rot_into(0.0, 0.0, heading, Rj)
+            if moved[j]:
+                _rot_into(angles[j, 0], angles[j, 1], angles[j, 2], R[j])
+                _mat3_into(Rj, R[j].copy(), R[j])
+            else:
+                R[j] = Rj
+            for a in range(3):
+                p[j, a] = offset[j, a] + root[a]
+            continue
+        if moved[j]:
+            _rot_into(angles[j, 0], angles[j, 1], angles[j, 2], Rj)
+            _mat3_into(R[q], Rj, R[j])
+        else:
+            R[j] = R[q]
+        for a in range(3):
+            p[j, a] = p[q, a] + (R[q, a, 0] * offset[j, 0] + R[q, a, 1] * offset[j, 1] + R[q, a, 2] * offset[j, 2])
+
+
+@njit(cache=True)
+def _capsule_ends(R, p, joint, end_a, end_b, out):
+    """(K, 2, 3) world endpoints of capsules on joints `joint` (K,) with local ends `end_a`,
+    `end_b` (K, 3), from the joint frames R (J, 3, 3), p (J, 3) (writes `out`)."""
+    for k in range(joint.shape[0]):
+        j = joint[k]
+        for a in range(3):
+            out[k, 0, a] = p[j, a] + (R[j, a, 0] * end_a[k, 0] + R[j, a, 1] * end_a[k, 1] + R[j, a, 2] * end_a[k, 2])
+            out[k, 1, a] = p[j, a] + (R[j, a, 0] * end_b[k, 0] + R[j, a, 1] * end_b[k, 1] + R[j, a, 2] * end_b[k, 2])
 
 
 @dataclass
@@ -93,39 +151,45 @@ class Pose:
     angles: dict = field(default_factory=dict)
 
 
-def forward_kinematics(pose: Pose) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """World (rotation, position) of every joint.
+# The skeleton and the capsules as arrays, for the kernels (JOINTS and CAPSULE_NAMES order)
+_PARENT = np.array([-1 if parent is None else JOINTS.index(parent) for parent, _ in SKELETON.values()], np.int64)
+_OFFSET = np.array([offset for _, offset in SKELETON.values()], np.float64)
+_CAPSULE_JOINT = np.array([JOINTS.index(c[0]) for c in CAPSULES.values()], np.int64)
+_CAPSULE_A = np.array([c[1] for c in CAPSULES.values()], np.float64)
+_CAPSULE_B = np.array([c[2] for c in CAPSULES.values()], np.float64)
 
-    A joint at rest (all its angles 0: _rot gives the identity exactly) takes its parent's
-    rotation as it is, without the product by the identity, which would give the same numbers
-    (each entry a * 1 + b * 0 + c * 0 = a): the same result at a third of the cost for a pose
-    that moves a few joints."""
-    out = {}
-    for name, (parent, offset) in SKELETON.items():
-        angles = pose.angles.get(name)
-        rest = angles is None or not any(angles)
-        if parent is None:
-            R = _rot((0.0, 0.0, pose.heading))
-            if not rest:
-                R = R @ _rot(angles)
-            p = np.asarray(offset, float) + np.asarray(pose.root, float)
-        else:
-            Rp, pp = out[parent]
-            R = Rp if rest else Rp @ _rot(angles)
-            p = pp + Rp @ np.asarray(offset, float)
-        out[name] = (R, p)
-    return out
+
+def joint_frames(pose: Pose) -> tuple[np.ndarray, np.ndarray]:
+    """World rotations (J, 3, 3) and positions (J, 3) of the joints (JOINTS order) in `pose`."""
+    angles = np.zeros((len(JOINTS), 3))
+    for name, a in pose.angles.items():
+        angles[JOINTS.index(name)] = a
+    moved = np.any(angles != 0.0, axis=1)
+    R, p = np.empty((len(JOINTS), 3, 3)), np.empty((len(JOINTS), 3))
+    _joint_frames(_PARENT, _OFFSET, angles, moved, float(pose.heading),
+                  np.asarray(pose.root, np.float64), R, p)
+    return R, p
+
+
+def forward_kinematics(pose: Pose) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """World (rotation, position) of every joint, by name (:func:`joint_frames`).
+
+    A joint at rest (all its angles 0) takes its parent's rotation as it is, without the product
+    by the identity, which would give the same numbers (each entry a * 1 + b * 0 + c * 0 = a)."""
+    R, p = joint_frames(pose)
+    return {name: (R[j], p[j]) for j, name in enumerate(JOINTS)}
 
 
 def capsule_endpoints(pose: Pose, frames: dict | None = None) -> np.ndarray:
     """(K, 2, 3) world endpoints of the capsules (CAPSULE_NAMES order); `frames`: the pose's
     forward kinematics when already computed."""
-    frames = forward_kinematics(pose) if frames is None else frames
+    if frames is None:
+        R, p = joint_frames(pose)
+    else:
+        R = np.stack([frames[name][0] for name in JOINTS])
+        p = np.stack([frames[name][1] for name in JOINTS])
     ends = np.empty((len(CAPSULES), 2, 3))
-    for k, (joint, a, b, _) in enumerate(CAPSULES.values()):
-        R, p = frames[joint]
-        ends[k, 0] = p + R @ np.asarray(a, float)
-        ends[k, 1] = p + R @ np.asarray(b, float)
+    _capsule_ends(R, p, _CAPSULE_JOINT, _CAPSULE_A, _CAPSULE_B, ends)
     return ends
 
 
@@ -288,23 +352,33 @@ class Mannequin(CapsuleUnion):
         """The motion's pose at scene time t (s), after the delay (unplaced: the body's own frame)."""
         return self.motion.pose(motion_time(t, self.phase))
 
-    def frames_at(self, t: float) -> dict:
-        """forward_kinematics of the pose at scene time t, unplaced (the last POSED_CACHE times kept:
-        the body's contact and the garments' handles ask for the same times)."""
+    def joint_frames_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`joint_frames` of the pose at scene time t, unplaced (the last POSED_CACHE times
+        kept: the body's contact and the garments' handles ask for the same times)."""
         key = float(t)
         cache = self.__dict__.setdefault("_frames", {})  # (a checkpoint of a version without it)
         if key not in cache:
             if len(cache) >= 3 * POSED_CACHE:  # each posed time asks for t and t +- VELOCITY_STEP
                 cache.pop(next(iter(cache)))
-            cache[key] = forward_kinematics(self.pose_at(t))
-        return cache[key]
+            cache[key] = joint_frames(self.pose_at(t))
+        frames = cache[key]
+        if isinstance(frames, dict):  # (a checkpoint of a version that kept them by name)
+            frames = cache[key] = (np.stack([frames[n][0] for n in JOINTS]), np.stack([frames[n][1] for n in JOINTS]))
+        return frames
+
+    def frames_at(self, t: float) -> dict:
+        """forward_kinematics of the pose at scene time t, unplaced (:meth:`joint_frames_at`)."""
+        R, p = self.joint_frames_at(t)
+        return {name: (R[j], p[j]) for j, name in enumerate(JOINTS)}
 
     def endpoints_at(self, t: float) -> np.ndarray:
         """(K, 2, 3) world capsule endpoints at time t."""
-        ends = capsule_endpoints(None, self.frames_at(t))
+        R, p = self.joint_frames_at(t)
+        ends = np.empty((len(CAPSULES), 2, 3))
+        _capsule_ends(R, p, _CAPSULE_JOINT, _CAPSULE_A, _CAPSULE_B, ends)
         c, s = np.cos(self.place_heading), np.sin(self.place_heading)
-        R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        return ends @ R.T + self.offset
+        Rh = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        return ends @ Rh.T + self.offset
 
     def set_time(self, t: float) -> None:
         if not isinstance(self.motion, Motion):  # during CapsuleUnion.__init__
