@@ -188,6 +188,11 @@ def capsule_endpoints(pose: Pose, frames: dict | None = None) -> np.ndarray:
     else:
         R = np.stack([frames[name][0] for name in JOINTS])
         p = np.stack([frames[name][1] for name in JOINTS])
+    return _ends_of(R, p)
+
+
+def _ends_of(R: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """(K, 2, 3) capsule endpoints from the joint frames R (J, 3, 3), p (J, 3)."""
     ends = np.empty((len(CAPSULES), 2, 3))
     _capsule_ends(R, p, _CAPSULE_JOINT, _CAPSULE_A, _CAPSULE_B, ends)
     return ends
@@ -356,15 +361,12 @@ class Mannequin(CapsuleUnion):
         """:func:`joint_frames` of the pose at scene time t, unplaced (the last POSED_CACHE times
         kept: the body's contact and the garments' handles ask for the same times)."""
         key = float(t)
-        cache = self.__dict__.setdefault("_frames", {})  # (a checkpoint of a version without it)
+        cache = self.__dict__.setdefault("_joint_frames", {})  # (a checkpoint of a version without it)
         if key not in cache:
             if len(cache) >= 3 * POSED_CACHE:  # each posed time asks for t and t +- VELOCITY_STEP
                 cache.pop(next(iter(cache)))
             cache[key] = joint_frames(self.pose_at(t))
-        frames = cache[key]
-        if isinstance(frames, dict):  # (a checkpoint of a version that kept them by name)
-            frames = cache[key] = (np.stack([frames[n][0] for n in JOINTS]), np.stack([frames[n][1] for n in JOINTS]))
-        return frames
+        return cache[key]
 
     def frames_at(self, t: float) -> dict:
         """forward_kinematics of the pose at scene time t, unplaced (:meth:`joint_frames_at`)."""
@@ -373,9 +375,7 @@ class Mannequin(CapsuleUnion):
 
     def endpoints_at(self, t: float) -> np.ndarray:
         """(K, 2, 3) world capsule endpoints at time t."""
-        R, p = self.joint_frames_at(t)
-        ends = np.empty((len(CAPSULES), 2, 3))
-        _capsule_ends(R, p, _CAPSULE_JOINT, _CAPSULE_A, _CAPSULE_B, ends)
+        ends = _ends_of(*self.joint_frames_at(t))
         c, s = np.cos(self.place_heading), np.sin(self.place_heading)
         Rh = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         return ends @ Rh.T + self.offset
