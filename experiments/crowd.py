@@ -35,6 +35,8 @@ import socket
 import numba
 from joblib import Parallel, delayed
 
+from cloth.physics.linsolve import limit_solver_threads
+
 # The thread environment of a character on Ray: one thread each (every library that reads one).
 THREAD_ENV = {"MKL_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
 # A local worker process's numba thread count (experiments.launch.share_cores sets it, `here` reads
@@ -55,6 +57,7 @@ def here(task, *args) -> dict:
     share = os.environ.get(SHARE_ENV, "")
     if share.isdigit() and int(share) >= 1:
         numba.set_num_threads(min(int(share), numba.config.NUMBA_NUM_THREADS))
+        limit_solver_threads(int(share))
     task(*args)
     return worker_info()
 
@@ -64,6 +67,7 @@ def one_thread(task, *args) -> dict:
     task sets the variables before the worker loads anything, this makes sure of them)."""
     os.environ.update(THREAD_ENV)
     numba.set_num_threads(1)
+    limit_solver_threads(1)
     task(*args)
     return worker_info()
 

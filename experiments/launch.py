@@ -18,6 +18,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from cloth.io.manifest import environment_manifest, write_json_atomic, write_text_atomic
 from cloth.io.recorder import Recorders, RerunRecorder
+from cloth.physics.linsolve import limit_solver_threads
 from cloth.simulation import SimulationDiverged
 from experiments.build import ConfigError, build, crowd_backend, crowd_size, resolved_record
 from experiments.crowd import SHARE_ENV, run_characters, where
@@ -138,7 +139,8 @@ def threads_per_run(cores: int, runs_at_once: int) -> int:
 
 def share_cores(runs_at_once: int) -> int:
     """Give this process, and the processes it starts (a crowd's characters), their share of the
-    machine's cores; returns the thread count (recorded as numba_threads in manifest.json).
+    machine's cores, numba's threads and the factorization's (cloth.physics.linsolve.limit_solver_threads);
+    returns the thread count (recorded as numba_threads in manifest.json).
 
     The user's NUMBA_NUM_THREADS (what numba read at import: numba.config.NUMBA_NUM_THREADS) is a
     ceiling, never rewritten: numba re-reads the environment at every compilation and refuses a
@@ -146,6 +148,7 @@ def share_cores(runs_at_once: int) -> int:
     stopped a run). Worker processes read their share from SHARE_ENV (experiments.crowd.here)."""
     threads = min(threads_per_run(os.cpu_count() or 1, runs_at_once), numba.config.NUMBA_NUM_THREADS)
     numba.set_num_threads(threads)
+    limit_solver_threads(threads)  # the factorization's MKL threads too: they waited on each other's cores
     os.environ[SHARE_ENV] = str(threads)  # inherited by worker processes started from here
     return numba.get_num_threads()
 

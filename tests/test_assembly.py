@@ -11,12 +11,17 @@ from cloth.core.mesh import grid_mesh
 from cloth.physics.assembly import SparsityPattern, apply_dirichlet, bsr_matvec, scatter_blocks, scatter_forces
 from cloth.physics.linsolve import (
     AUTO_CHOLESKY_UNKNOWNS,
+    CNR_THREADS,
     SolverOptions,
+    _mkl_machine_threads,
+    _pardiso_template,
     _upper_triangle,
     cholesky_available,
+    limit_solver_threads,
     resolve_method,
     solve,
     solve_capped,
+    solver_threads,
 )
 
 # Dense and sparse sums of the same O(1) products differ by round-off only.
@@ -182,6 +187,34 @@ def test_solver_method_is_checked_before_any_work():
     assert resolve_method("auto", AUTO_CHOLESKY_UNKNOWNS - 3) == "pcg"  # a tiny system: CG is cheaper
     assert resolve_method("auto") == ("cholesky+pcg" if factorizes else "pcg")
     assert resolve_method("pcg", 10**6) == "pcg"
+
+
+@needs_cholesky
+def test_the_factorization_keeps_to_the_threads_it_is_given():
+    """Applied at once when MKL is loaded; None lifts the limit; a share of none is refused."""
+    try:
+        assert limit_solver_threads(1) == 1 == solver_threads()
+        assert limit_solver_threads(None) == min(CNR_THREADS, _mkl_machine_threads(_pardiso_template()))
+        with pytest.raises(ValueError, match="at least one thread"):
+            limit_solver_threads(0)
+    finally:
+        limit_solver_threads(None)
+
+
+@needs_cholesky
+def test_a_runs_share_of_the_cores_holds_the_factorization_to_it():
+    """share_cores before the first solve (a run's order, in a fresh process): with as many runs
+    as cores, each run's factorization takes one thread, not MKL's default of all of them."""
+    import os
+    import subprocess
+    import sys
+
+    script = ("import os\nfrom experiments.launch import share_cores\n"
+              "from cloth.physics.linsolve import solver_threads\n"
+              "print(share_cores(os.cpu_count()), solver_threads())")
+    env = {**os.environ, "MKL_NUM_THREADS": str(max(2, os.cpu_count() or 1))}
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["1", "1"], out.stdout
 
 
 @needs_cholesky

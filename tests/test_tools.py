@@ -244,3 +244,58 @@ def test_collision_cost_tabulates_the_share_of_collisions(tmp_path):
     assert len(table) == 2 + 3  # two crushed-sheet resolutions, adaptive, the dancer twice
     assert ((table.collision_share >= 0) & (table.collision_share <= 1)).all()
     assert table.collision_time_exponent.notna().sum() == 1
+
+
+needs_cholesky = pytest.mark.skipif(
+    __import__("cloth.physics.linsolve", fromlist=["x"]).cholesky_available() is not None,
+    reason="the crossover compares the factorization with PCG: pypardiso (x86_64) only")
+
+
+@needs_cholesky
+def test_solver_crossover_times_both_methods_on_every_solve_and_keeps_the_runs_own(tmp_path, capsys):
+    """Every system of the run solved by both methods; the page and tables written."""
+    from cloth.physics import integrator, linsolve
+    from experiments.solver_crossover import main
+
+    page = tmp_path / "crossover.md"
+    main(["--scene", "layered_sheets", "--frames", "2", "--out", str(tmp_path / "out"), "--report", str(page),
+          "scene.scales.small.resolution=6"])
+    assert integrator.solve is linsolve.solve  # the stand-in is gone after the run
+    out_dir = _only_child(tmp_path / "out")
+    solves = pd.read_csv(out_dir / "solves.csv")
+    assert len(solves) > 0 and (solves[["pcg_ms", "cholesky_ms"]] > 0).all().all()
+    assert solves["new_pattern"].iloc[0]  # the first solve analyses the pattern
+    summary = json.loads((out_dir / "summary.json").read_text())
+    totals = pd.DataFrame(summary["totals"])
+    assert summary["current_threshold"] == linsolve.AUTO_CHOLESKY_UNKNOWNS
+    assert totals["solve_s"].min() == pytest.approx(
+        totals.loc[totals["threshold"] == summary["best_threshold"], "solve_s"].iloc[0])
+    assert "Total solve time by threshold" in page.read_text() and "fastest threshold" in capsys.readouterr().out
+
+
+def test_solver_crossover_totals_follow_the_threshold():
+    """Hand-made solves: below the threshold PCG's time counts, from it up the factorization's."""
+    from experiments.solver_crossover import band_table, threshold_totals
+
+    df = pd.DataFrame({"unknowns": [100, 400, 2000], "pcg_ms": [1.0, 4.0, 20.0],
+                       "cholesky_ms": [3.0, 2.0, 5.0]})
+    totals = threshold_totals(df).set_index("threshold")["solve_s"]
+    assert totals[0] == pytest.approx(1e-3 * (3 + 2 + 5))
+    assert totals[150] == pytest.approx(1e-3 * (1 + 2 + 5))  # the best: PCG below 150 only
+    assert totals[2001] == pytest.approx(1e-3 * (1 + 4 + 20))
+    bands = band_table(df).set_index("unknowns")
+    assert bands.loc["0-150", "pcg_over_cholesky"] == pytest.approx(1 / 3) and bands["solves"].sum() == 3
+
+
+def test_solver_crossover_hands_the_run_its_own_methods_solution():
+    from cloth.physics.linsolve import SolverOptions
+    from experiments.solver_crossover import SolveTimer
+
+    class Pattern:
+        pass
+
+    timer = SolveTimer(lambda pattern, data, b, options, x0=None: (options.method, 7, 0.0))
+    b = np.zeros((4, 3))
+    assert timer(Pattern(), None, b, SolverOptions("pcg"))[0] == "pcg"
+    assert timer(Pattern(), None, b, SolverOptions("cholesky"))[0] == "cholesky"
+    assert len(timer.rows) == 2 and timer.rows[0]["unknowns"] == 12 and timer.rows[0]["pcg_iterations"] == 7

@@ -51,10 +51,53 @@ BENDING_HESSIAN_DEFAULT = "gauss_newton"
 MEMBRANE_HESSIANS = ("projected", "gauss_newton")
 # "auto" factorizes from this many unknowns (3 per node) up. Measured on the dancer's systems:
 # 150-250 unknowns (out of view), PCG 0.13 ms per step against PARDISO's 1 ms; about 3,000
-# (1.8k faces in view), PARDISO ahead; the sheet's 3,267, 17 ms against 3 ms.
+# (1.8k faces in view), PARDISO ahead; the sheet's 3,267, 17 ms against 3 ms. Measured again by
+# experiments.solver_crossover (every solve of a run with both methods; docs/solver_crossover.md):
+# on the solo dancer's view-dependent run any threshold from 600 to 1,500 gives the same total
+# within 0.3 %; PCG is 2x faster below 600 unknowns, the factorization 1.4-1.9x above 1,500.
 AUTO_CHOLESKY_UNKNOWNS = 1500
 MKL_CBWR_AUTO = 2  # mkl_cbwr_set's mode: reproducible results on this machine's code path
 CNR_THREADS = 2  # PARDISO's threads in CNR mode (iparm 34); MKL runs on at most this many
+# The run's share of the cores (limit_solver_threads; None: the whole machine). Measured with one
+# other run on the 2 cores (solo dancer, view-dependent, 30 frames, experiments.solver_crossover):
+# PARDISO on 2 threads took 17.4 ms per solve of 2,000-3,000 unknowns against 12.0 ms on one, and
+# the run's solves 4.56 s against 2.95 s: its threads wait on a core another run holds.
+_solver_threads: list[int | None] = [None]
+
+
+def limit_solver_threads(threads: int | None) -> int:
+    """Hold the factorization (MKL) to at most `threads` threads, the run's share of the cores
+    (experiments.launch.share_cores gives numba the same; None: the whole machine again); returns
+    the threads it will use (1 where the factorization cannot run). The results do not depend on
+    it (CNR mode, _pardiso_template)."""
+    if threads is not None and int(threads) < 1:
+        raise ValueError(f"limit_solver_threads({threads}): at least one thread")
+    _solver_threads[0] = None if threads is None else int(threads)
+    if _pardiso_template.cache_info().currsize:  # MKL already loaded: apply now, else at its load
+        template = _pardiso_template()
+        if template is not None:
+            _set_mkl_threads(template)
+    return solver_threads()
+
+
+def solver_threads() -> int:
+    """The threads the factorization runs on (1 where it cannot run); loads MKL if need be."""
+    template = _pardiso_template()
+    return 1 if template is None else int(template.libmkl.MKL_Get_Max_Threads())
+
+
+def _set_mkl_threads(template) -> None:
+    # MKL_Get_Max_Threads answers what was last set: the cap starts from the machine's own count
+    cap = min(CNR_THREADS, max(1, _mkl_machine_threads(template)))
+    if _solver_threads[0] is not None:
+        cap = min(cap, _solver_threads[0])
+    template.libmkl.MKL_Set_Num_Threads(cap)
+
+
+@functools.cache
+def _mkl_machine_threads(template) -> int:
+    """MKL's own thread count before we set one (MKL_NUM_THREADS or the cores)."""
+    return int(template.libmkl.MKL_Get_Max_Threads())
 
 
 @functools.cache
@@ -72,9 +115,9 @@ def _pardiso_template():
     # crowd's character (in a worker process, on one thread) match the same character run alone
     # (tests/test_reproducibility.py, tests/test_assembly.py). With CNR on and iparm 34 fixed
     # (CholeskyFactor.IPARM), the results are the same on 1 and CNR_THREADS threads (tested), so
-    # MKL is held to at most that many.
+    # MKL is held to at most that many, and to the run's share of the cores (limit_solver_threads).
     template.libmkl.MKL_CBWR_Set(MKL_CBWR_AUTO)
-    template.libmkl.MKL_Set_Num_Threads(min(CNR_THREADS, max(1, template.libmkl.MKL_Get_Max_Threads())))
+    _set_mkl_threads(template)
     return template
 
 

@@ -1,0 +1,141 @@
+"""Benchmark: where the sparse Cholesky factorization overtakes PCG, on the systems a scene's run solves.
+
+    python -m experiments.solver_crossover [--scene solo_dancer] [--scale small] [--frames 60]
+                                           [--out DIR] [--report PAGE.md] [KEY=VALUE ...]
+
+It runs the scene as a study runs it (Hydra's config; KEY=VALUE overrides such as `+point=viewdep`
+or `mode=adaptive`) and, at every implicit step, solves the step's system twice, once with each
+method, timing each exactly as `cloth.physics.linsolve.solve` runs it: PCG from the step's warm
+start; the Cholesky factorization refactored (its analysis on the first solve after a remesh, as in
+a run), its residual checked and PCG finishing from its solution when it misses the tolerance. The
+run goes on with the solution of the method its own solver options pick, so its trajectory is the
+run's. It prints, per band of unknowns (3 per node), the solves, the median milliseconds of each
+method and their ratio, and, for thresholds from 0 up, the total solve time "auto" would take with
+that threshold (`AUTO_CHOLESKY_UNKNOWNS`: Cholesky from that many unknowns up); the best of them
+against the current one. It writes `<out>/<timestamp>/solves.csv` (one row per solve) and
+`summary.json`; `--report` writes the tables as a Markdown page (docs/solver_crossover.md).
+
+A benchmark, not a test: its times are this machine's, and the threshold it suggests is too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import replace
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from cloth.io.manifest import environment_manifest, write_json_atomic, write_text_atomic
+from cloth.physics import integrator, linsolve
+from experiments.benchmark import CONF, scene_overrides, write_report
+
+BANDS = (0, 150, 300, 450, 600, 900, 1200, 1500, 2000, 3000, 5000, 10000, np.inf)
+
+
+class SolveTimer:
+    """A stand-in for the integrator's `solve` that times both methods on every system."""
+
+    def __init__(self, solve=linsolve.solve):
+        self._solve = solve
+        self.rows: list[dict] = []
+
+    def __call__(self, pattern, data, b, options, x0=None):
+        out = {}
+        row = {"unknowns": int(b.size), "new_pattern": getattr(pattern, "_cholesky", None) is None}
+        for method in ("pcg", "cholesky"):
+            t0 = time.perf_counter()
+            out[method] = self._solve(pattern, data, b, replace(options, method=method), x0=x0)
+            row[f"{method}_ms"] = 1e3 * (time.perf_counter() - t0)
+            row[f"{method}_iterations"] = out[method][1]
+        self.rows.append(row)
+        chosen = linsolve.resolve_method(options.method, b.size)
+        return out[chosen if chosen in out else "pcg"]
+
+
+def band_table(df: pd.DataFrame) -> pd.DataFrame:
+    """Solves per band of unknowns: count and median milliseconds of each method."""
+    bands = pd.cut(df["unknowns"], BANDS, right=False)
+    g = df.groupby(bands, observed=True)
+    table = pd.DataFrame({"solves": g.size(), "pcg_ms": g["pcg_ms"].median(), "cholesky_ms": g["cholesky_ms"].median()})
+    table["pcg_over_cholesky"] = table["pcg_ms"] / table["cholesky_ms"]
+    table.index = [f"{int(iv.left)}-{'' if np.isinf(iv.right) else int(iv.right)}" for iv in table.index]
+    return table.rename_axis("unknowns").reset_index()
+
+
+def threshold_totals(df: pd.DataFrame) -> pd.DataFrame:
+    """Total solve seconds of the run with "auto" switching to Cholesky at each candidate threshold."""
+    n = df["unknowns"].to_numpy()
+    candidates = sorted({0, *(int(b) for b in BANDS[1:-1]), linsolve.AUTO_CHOLESKY_UNKNOWNS, int(n.max()) + 1})
+    totals = [1e-3 * float(np.where(n >= t, df["cholesky_ms"], df["pcg_ms"]).sum()) for t in candidates]
+    return pd.DataFrame({"threshold": candidates, "solve_s": totals})
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scene", default="solo_dancer", help="conf/scene/ name or ARCSim .json")
+    parser.add_argument("--scale", default="small", choices=("small", "paper"))
+    parser.add_argument("--frames", type=int, default=60, help="frames to run (every solve of each is timed)")
+    parser.add_argument("--out", type=Path, default=Path("results/solver_crossover"))
+    parser.add_argument("--report", type=Path, default=None, metavar="PAGE.md")
+    parser.add_argument("overrides", nargs="*", help="config overrides (key=value), e.g. +point=viewdep")
+    args = parser.parse_args(argv)
+    command = "python -m experiments.solver_crossover " + " ".join(sys.argv[1:] if argv is None else argv)
+    if args.frames < 1:
+        parser.error(f"--frames {args.frames}: at least 1")
+    if not args.scene.endswith(".json") and not (CONF / "scene" / f"{args.scene}.yaml").exists():
+        parser.error(f"--scene {args.scene!r}: no conf/scene/{args.scene}.yaml (or give an ARCSim .json)")
+    if (why := linsolve.cholesky_available()) is not None:
+        parser.error(f"nothing to compare: {why}")
+    from hydra import compose, initialize_config_dir  # noqa: PLC0415 - import cost
+
+    from experiments.build import build_simulation  # noqa: PLC0415 - import cost
+
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=[*scene_overrides(args.scene), f"scale={args.scale}",
+                                                       "output.rerun=false", *args.overrides])
+    sim, _ = build_simulation(cfg)
+    timer = SolveTimer()
+    integrator.solve = timer
+    try:
+        for _ in range(args.frames):
+            sim.advance_frame()
+    finally:
+        integrator.solve = linsolve.solve
+    df = pd.DataFrame(timer.rows)
+    if df.empty:
+        raise SystemExit("the run solved no system: nothing to compare")
+    out_dir = args.out / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(out_dir / "solves.csv", df.to_csv(index=False))
+    bands, totals = band_table(df), threshold_totals(df)
+    best = totals.loc[totals["solve_s"].idxmin()]
+    current = totals.loc[totals["threshold"] == linsolve.AUTO_CHOLESKY_UNKNOWNS].iloc[0]
+    verdict = (f"{len(df)} solves: the fastest threshold {int(best['threshold'])} unknowns, {best['solve_s']:.3f} s "
+               f"of solves; the current AUTO_CHOLESKY_UNKNOWNS={linsolve.AUTO_CHOLESKY_UNKNOWNS}, "
+               f"{current['solve_s']:.3f} s ({current['solve_s'] / best['solve_s']:.2f}x)")
+    fmt = {"float_format": lambda v: f"{v:.3f}", "index": False}
+    print(bands.to_string(**fmt))
+    print(totals.to_string(**fmt))
+    print(verdict, f"; results in {out_dir}")
+    manifest = environment_manifest(0)
+    write_json_atomic(out_dir / "summary.json", {"scene": args.scene, "scale": args.scale, "frames": args.frames,
+                                                 "overrides": args.overrides, "solves": len(df),
+                                                 "best_threshold": int(best["threshold"]),
+                                                 "current_threshold": linsolve.AUTO_CHOLESKY_UNKNOWNS,
+                                                 "bands": bands.to_dict("records"),
+                                                 "totals": totals.to_dict("records"), "manifest": manifest})
+    if args.report is not None:
+        write_report(args.report, "Cholesky against PCG by system size",
+                     f"`{args.scene}` (scale={args.scale}, {' '.join(args.overrides) or 'defaults'}), every implicit "
+                     f"step of {args.frames} frames solved with both methods (each as `linsolve.solve` runs it). "
+                     f"{verdict}.", [("Median milliseconds per solve", bands),
+                                     ("Total solve time by threshold", totals)], manifest, command)
+
+
+if __name__ == "__main__":
+    main()
