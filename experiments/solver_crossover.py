@@ -1,9 +1,9 @@
 """Benchmark: where the sparse Cholesky factorization overtakes PCG, on the systems a scene's run solves.
 
-    python -m experiments.solver_crossover [--scene solo_dancer] [--scale small] [--frames 60]
+    python -m experiments.solver_crossover [--scene solo_dancer [karate ...]] [--scale small] [--frames 60]
                                            [--out DIR] [--report PAGE.md] [KEY=VALUE ...]
 
-It runs the scene as a study runs it (Hydra's config; KEY=VALUE overrides such as `+point=viewdep`
+It runs each scene as a study runs it (Hydra's config; KEY=VALUE overrides such as `+point=viewdep`
 or `mode=adaptive`) and, at every implicit step, solves the step's system twice, once with each
 method, timing each exactly as `cloth.physics.linsolve.solve` runs it: PCG from the step's warm
 start; the Cholesky factorization refactored (its analysis on the first solve after a remesh, as in
@@ -13,7 +13,7 @@ run's. It prints, per band of unknowns (3 per node), the solves, the median mill
 method and their ratio, and, for thresholds from 0 up, the total solve time "auto" would take with
 that threshold (`AUTO_CHOLESKY_UNKNOWNS`: Cholesky from that many unknowns up); the best of them
 against the current one. It writes `<out>/<timestamp>/solves.csv` (one row per solve) and
-`summary.json`; `--report` writes the tables as a Markdown page (docs/solver_crossover.md).
+`summary.json` (per scene); `--report` writes the tables as a Markdown page (docs/solver_crossover.md).
 
 A benchmark, not a test: its times are this machine's, and the threshold it suggests is too.
 """
@@ -75,66 +75,96 @@ def threshold_totals(df: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame({"threshold": candidates, "solve_s": totals})
 
 
-def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scene", default="solo_dancer", help="conf/scene/ name or ARCSim .json")
-    parser.add_argument("--scale", default="small", choices=("small", "paper"))
-    parser.add_argument("--frames", type=int, default=60, help="frames to run (every solve of each is timed)")
-    parser.add_argument("--out", type=Path, default=Path("results/solver_crossover"))
-    parser.add_argument("--report", type=Path, default=None, metavar="PAGE.md")
-    parser.add_argument("overrides", nargs="*", help="config overrides (key=value), e.g. +point=viewdep")
-    args = parser.parse_args(argv)
-    command = "python -m experiments.solver_crossover " + " ".join(sys.argv[1:] if argv is None else argv)
-    if args.frames < 1:
-        parser.error(f"--frames {args.frames}: at least 1")
-    if not args.scene.endswith(".json") and not (CONF / "scene" / f"{args.scene}.yaml").exists():
-        parser.error(f"--scene {args.scene!r}: no conf/scene/{args.scene}.yaml (or give an ARCSim .json)")
-    if (why := linsolve.cholesky_available()) is not None:
-        parser.error(f"nothing to compare: {why}")
+def time_scene(scene: str, scale: str, frames: int, overrides: list[str]) -> pd.DataFrame:
+    """Every solve of `frames` frames of one scene, timed with both methods (SolveTimer's rows)."""
     from hydra import compose, initialize_config_dir  # noqa: PLC0415 - import cost
 
     from experiments.build import build_simulation  # noqa: PLC0415 - import cost
 
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=[*scene_overrides(args.scene), f"scale={args.scale}",
-                                                       "output.rerun=false", *args.overrides])
+        cfg = compose(config_name="config", overrides=[*scene_overrides(scene), f"scale={scale}",
+                                                       "output.rerun=false", *overrides])
     sim, _ = build_simulation(cfg)
     timer = SolveTimer()
     integrator.solve = timer
     try:
-        for _ in range(args.frames):
+        for _ in range(frames):
             sim.advance_frame()
     finally:
         integrator.solve = linsolve.solve
-    df = pd.DataFrame(timer.rows)
-    if df.empty:
-        raise SystemExit("the run solved no system: nothing to compare")
-    out_dir = args.out / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(out_dir / "solves.csv", df.to_csv(index=False))
-    bands, totals = band_table(df), threshold_totals(df)
+    return pd.DataFrame(timer.rows)
+
+
+def verdict(df: pd.DataFrame, totals: pd.DataFrame) -> tuple[int, str]:
+    """The fastest threshold of one scene's solves, and a sentence comparing it with the current one."""
     best = totals.loc[totals["solve_s"].idxmin()]
     current = totals.loc[totals["threshold"] == linsolve.AUTO_CHOLESKY_UNKNOWNS].iloc[0]
-    verdict = (f"{len(df)} solves: the fastest threshold {int(best['threshold'])} unknowns, {best['solve_s']:.3f} s "
-               f"of solves; the current AUTO_CHOLESKY_UNKNOWNS={linsolve.AUTO_CHOLESKY_UNKNOWNS}, "
-               f"{current['solve_s']:.3f} s ({current['solve_s'] / best['solve_s']:.2f}x)")
+    return int(best["threshold"]), (
+        f"{len(df)} solves: the fastest threshold {int(best['threshold'])} unknowns, {best['solve_s']:.3f} s of "
+        f"solves; the current AUTO_CHOLESKY_UNKNOWNS={linsolve.AUTO_CHOLESKY_UNKNOWNS}, {current['solve_s']:.3f} s "
+        f"({current['solve_s'] / best['solve_s']:.3f}x)")
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scene", nargs="+", default=["solo_dancer"],
+                        help="conf/scene/ names or ARCSim .json paths, run one after the other")
+    parser.add_argument("--scale", default="small", choices=("small", "paper"))
+    parser.add_argument("--frames", type=int, default=60, help="frames to run (every solve of each is timed)")
+    parser.add_argument("--out", type=Path, default=Path("results/solver_crossover"))
+    parser.add_argument("--report", type=Path, default=None, metavar="PAGE.md")
+    parser.add_argument("overrides", nargs="*",
+                        help="config overrides (key=value) for every scene, e.g. +point=viewdep")
+    args = parser.parse_args(argv)
+    # `--scene a b key=value` : argparse gives the overrides to --scene; a scene has no '='
+    args.overrides = [v for v in args.scene if "=" in v] + args.overrides
+    args.scene = [v for v in args.scene if "=" not in v]
+    if not args.scene:
+        parser.error("--scene: at least one scene")
+    command = "python -m experiments.solver_crossover " + " ".join(sys.argv[1:] if argv is None else argv)
+    if args.frames < 1:
+        parser.error(f"--frames {args.frames}: at least 1")
+    for scene in args.scene:
+        if not scene.endswith(".json") and not (CONF / "scene" / f"{scene}.yaml").exists():
+            parser.error(f"--scene {scene!r}: no conf/scene/{scene}.yaml (or give an ARCSim .json)")
+        if scene.endswith(".json") and not Path(scene).expanduser().is_file():
+            parser.error(f"--scene {scene!r}: no such ARCSim configuration")
+    if (why := linsolve.cholesky_available()) is not None:
+        parser.error(f"nothing to compare: {why}")
+    out_dir = args.out / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+    out_dir.mkdir(parents=True, exist_ok=True)
     fmt = {"float_format": lambda v: f"{v:.3f}", "index": False}
-    print(bands.to_string(**fmt))
-    print(totals.to_string(**fmt))
-    print(verdict, f"; results in {out_dir}")
+    scenes, tables, sentences, frames = [], [], [], []
+    for scene in args.scene:
+        df = time_scene(scene, args.scale, args.frames, args.overrides)
+        if df.empty:
+            raise SystemExit(f"{scene}: the run solved no system: nothing to compare")
+        frames.append(df.assign(scene=scene))
+        write_text_atomic(out_dir / "solves.csv", pd.concat(frames).to_csv(index=False))  # kept if a later scene fails
+        bands, totals = band_table(df), threshold_totals(df)
+        best, sentence = verdict(df, totals)
+        print(f"{scene}:")
+        print(bands.to_string(**fmt))
+        print(totals.to_string(**fmt))
+        print(f"{scene}: {sentence}", flush=True)
+        scenes.append({"scene": scene, "solves": len(df), "best_threshold": best,
+                       "bands": bands.to_dict("records"), "totals": totals.to_dict("records")})
+        sentences.append(f"`{scene}`: {sentence}.")
+        tables += [(f"{scene}: median milliseconds per solve", bands),
+                   (f"{scene}: total solve time by threshold", totals)]
     manifest = environment_manifest(0)
-    write_json_atomic(out_dir / "summary.json", {"scene": args.scene, "scale": args.scale, "frames": args.frames,
-                                                 "overrides": args.overrides, "solves": len(df),
-                                                 "best_threshold": int(best["threshold"]),
+    write_json_atomic(out_dir / "summary.json", {"scale": args.scale, "frames": args.frames,
+                                                 "overrides": args.overrides,
                                                  "current_threshold": linsolve.AUTO_CHOLESKY_UNKNOWNS,
-                                                 "bands": bands.to_dict("records"),
-                                                 "totals": totals.to_dict("records"), "manifest": manifest})
+                                                 "scenes": scenes, "manifest": manifest})
+    print(f"results in {out_dir}")
     if args.report is not None:
         write_report(args.report, "Cholesky against PCG by system size",
-                     f"`{args.scene}` (scale={args.scale}, {' '.join(args.overrides) or 'defaults'}), every implicit "
-                     f"step of {args.frames} frames solved with both methods (each as `linsolve.solve` runs it). "
-                     f"{verdict}.", [("Median milliseconds per solve", bands),
-                                     ("Total solve time by threshold", totals)], manifest, command)
+                     f"Scale={args.scale}, {' '.join(args.overrides) or 'no overrides'}: every implicit step of "
+                     f"{args.frames} frames of each scene solved with both methods (each as `linsolve.solve` runs "
+                     "it: PCG from the step's warm start; the factorization refactored, analysed on the first solve "
+                     "after a remesh, PCG finishing when it misses the tolerance). " + " ".join(sentences),
+                     tables, manifest, command)
 
 
 if __name__ == "__main__":

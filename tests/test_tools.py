@@ -258,19 +258,24 @@ def test_solver_crossover_times_both_methods_on_every_solve_and_keeps_the_runs_o
     from experiments.solver_crossover import main
 
     page = tmp_path / "crossover.md"
-    main(["--scene", "layered_sheets", "--frames", "2", "--out", str(tmp_path / "out"), "--report", str(page),
-          "scene.scales.small.resolution=6"])
+    main(["--frames", "2", "--out", str(tmp_path / "out"), "--report", str(page),
+          "--scene", "layered_sheets", "scene.scales.small.resolution=6"])  # the override after --scene's names
     assert integrator.solve is linsolve.solve  # the stand-in is gone after the run
     out_dir = _only_child(tmp_path / "out")
     solves = pd.read_csv(out_dir / "solves.csv")
     assert len(solves) > 0 and (solves[["pcg_ms", "cholesky_ms"]] > 0).all().all()
     assert solves["new_pattern"].iloc[0]  # the first solve analyses the pattern
     summary = json.loads((out_dir / "summary.json").read_text())
-    totals = pd.DataFrame(summary["totals"])
-    assert summary["current_threshold"] == linsolve.AUTO_CHOLESKY_UNKNOWNS
+    (scene,) = summary["scenes"]
+    totals = pd.DataFrame(scene["totals"])
+    assert summary["current_threshold"] == linsolve.AUTO_CHOLESKY_UNKNOWNS and scene["scene"] == "layered_sheets"
     assert totals["solve_s"].min() == pytest.approx(
-        totals.loc[totals["threshold"] == summary["best_threshold"], "solve_s"].iloc[0])
-    assert "Total solve time by threshold" in page.read_text() and "fastest threshold" in capsys.readouterr().out
+        totals.loc[totals["threshold"] == scene["best_threshold"], "solve_s"].iloc[0])
+    assert "layered_sheets: total solve time by threshold" in page.read_text()
+    assert "fastest threshold" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        main(["--scene", "layered_sheets", "nowhere"])
+    assert "no conf/scene/nowhere.yaml" in capsys.readouterr().err
 
 
 def test_solver_crossover_totals_follow_the_threshold():

@@ -52,9 +52,11 @@ MEMBRANE_HESSIANS = ("projected", "gauss_newton")
 # "auto" factorizes from this many unknowns (3 per node) up. Measured on the dancer's systems:
 # 150-250 unknowns (out of view), PCG 0.13 ms per step against PARDISO's 1 ms; about 3,000
 # (1.8k faces in view), PARDISO ahead; the sheet's 3,267, 17 ms against 3 ms. Measured again by
-# experiments.solver_crossover (every solve of a run with both methods; docs/solver_crossover.md):
-# on the solo dancer's view-dependent run any threshold from 600 to 1,500 gives the same total
-# within 0.3 %; PCG is 2x faster below 600 unknowns, the factorization 1.4-1.9x above 1,500.
+# experiments.solver_crossover (every solve of a run with both methods, 150 frames, scale=small,
+# view-dependent; docs/solver_crossover.md): the factorization ahead from 600-900 unknowns up
+# (1.1x there, 1.4-2.3x from 1,500), PCG ahead below; the total is flat from 600 to 2,000: in two
+# runs of each, the best threshold was 600 and 1,200 on the solo dancer, 1,200 and 2,000 on karate,
+# and this one's total within 1.5 % of the best's.
 AUTO_CHOLESKY_UNKNOWNS = 1500
 MKL_CBWR_AUTO = 2  # mkl_cbwr_set's mode: reproducible results on this machine's code path
 CNR_THREADS = 2  # PARDISO's threads in CNR mode (iparm 34); MKL runs on at most this many
