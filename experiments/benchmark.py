@@ -178,6 +178,15 @@ def scene_overrides(scene: str) -> list[str]:
     return [f"scene={scene}"]
 
 
+def scene_error(scene: str) -> str | None:
+    """Why `scene` (a conf/scene/ name or an ARCSim .json path) cannot run, or None."""
+    if scene.endswith(".json"):
+        return None if Path(scene).expanduser().is_file() else f"--scene {scene!r}: no such ARCSim configuration"
+    if not (CONF / "scene" / f"{scene}.yaml").exists():
+        return f"--scene {scene!r}: no conf/scene/{scene}.yaml (or give an ARCSim .json)"
+    return None
+
+
 def bench_scene(scene: str, mode: str, frames: int, warmup: int, extra: list[str], scale: str = "small") -> dict:
     """One scene in one mode: per-phase cost per face per step of `frames` frames after `warmup`."""
     overrides = [*scene_overrides(scene), f"mode={mode}", f"scale={scale}", *extra]
@@ -311,8 +320,8 @@ def main(argv=None) -> None:
     parser.add_argument("overrides", nargs="*", help="--modes, --scene: more config overrides (key=value)")
     args = parser.parse_args(argv)
     args.command = "python -m experiments.benchmark " + " ".join(sys.argv[1:] if argv is None else argv)
-    if args.scene is not None and args.scene.endswith(".json") and not Path(args.scene).expanduser().is_file():
-        parser.error(f"--scene {args.scene!r}: no such ARCSim configuration")
+    if args.scene is not None and args.scene.endswith(".json") and (why := scene_error(args.scene)):
+        parser.error(why)
     if args.scene is None and args.overrides and not args.modes:
         parser.error("overrides (key=value) go with --modes or --scene")
     solver = SolverOptions(method=args.solver)  # a method that cannot run here stops before any work
@@ -338,8 +347,8 @@ def main(argv=None) -> None:
     elif args.scene is not None:
         frames = 20 if args.frames is None else args.frames
         warmup = 5 if args.warmup is None else args.warmup
-        if not args.scene.endswith(".json") and not (CONF / "scene" / f"{args.scene}.yaml").exists():
-            parser.error(f"--scene {args.scene!r}: no conf/scene/{args.scene}.yaml (or give an ARCSim .json)")
+        if (why := scene_error(args.scene)) is not None:
+            parser.error(why)
     else:
         frames = 6 if args.frames is None else args.frames
         warmup = 12 if args.warmup is None else args.warmup

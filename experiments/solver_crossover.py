@@ -32,7 +32,7 @@ import pandas as pd
 
 from cloth.io.manifest import environment_manifest, write_json_atomic, write_text_atomic
 from cloth.physics import integrator, linsolve
-from experiments.benchmark import CONF, scene_overrides, write_report
+from experiments.benchmark import _time_mode, scene_error, scene_overrides, write_report
 
 BANDS = (0, 150, 300, 450, 600, 900, 1200, 1500, 2000, 3000, 5000, 10000, np.inf)
 
@@ -77,19 +77,10 @@ def threshold_totals(df: pd.DataFrame) -> pd.DataFrame:
 
 def time_scene(scene: str, scale: str, frames: int, overrides: list[str]) -> pd.DataFrame:
     """Every solve of `frames` frames of one scene, timed with both methods (SolveTimer's rows)."""
-    from hydra import compose, initialize_config_dir  # noqa: PLC0415 - import cost
-
-    from experiments.build import build_simulation  # noqa: PLC0415 - import cost
-
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=[*scene_overrides(scene), f"scale={scale}",
-                                                       "output.rerun=false", *overrides])
-    sim, _ = build_simulation(cfg)
     timer = SolveTimer()
     integrator.solve = timer
     try:
-        for _ in range(frames):
-            sim.advance_frame()
+        _time_mode([*scene_overrides(scene), f"scale={scale}", "output.rerun=false", *overrides], frames, 0)
     finally:
         integrator.solve = linsolve.solve
     return pd.DataFrame(timer.rows)
@@ -125,10 +116,8 @@ def main(argv=None) -> None:
     if args.frames < 1:
         parser.error(f"--frames {args.frames}: at least 1")
     for scene in args.scene:
-        if not scene.endswith(".json") and not (CONF / "scene" / f"{scene}.yaml").exists():
-            parser.error(f"--scene {scene!r}: no conf/scene/{scene}.yaml (or give an ARCSim .json)")
-        if scene.endswith(".json") and not Path(scene).expanduser().is_file():
-            parser.error(f"--scene {scene!r}: no such ARCSim configuration")
+        if (why := scene_error(scene)) is not None:
+            parser.error(why)
     if (why := linsolve.cholesky_available()) is not None:
         parser.error(f"nothing to compare: {why}")
     out_dir = args.out / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")

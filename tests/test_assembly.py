@@ -13,8 +13,7 @@ from cloth.physics.linsolve import (
     AUTO_CHOLESKY_UNKNOWNS,
     CNR_THREADS,
     SolverOptions,
-    _mkl_machine_threads,
-    _pardiso_template,
+    _threads,
     _upper_triangle,
     cholesky_available,
     limit_solver_threads,
@@ -194,7 +193,7 @@ def test_the_factorization_keeps_to_the_threads_it_is_given():
     """Applied at once when MKL is loaded; None lifts the limit; a share of none is refused."""
     try:
         assert limit_solver_threads(1) == 1 == solver_threads()
-        assert limit_solver_threads(None) == min(CNR_THREADS, _mkl_machine_threads(_pardiso_template()))
+        assert limit_solver_threads(None) == min(CNR_THREADS, _threads["machine"])
         with pytest.raises(ValueError, match="at least one thread"):
             limit_solver_threads(0)
     finally:

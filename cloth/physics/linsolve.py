@@ -60,11 +60,13 @@ MEMBRANE_HESSIANS = ("projected", "gauss_newton")
 AUTO_CHOLESKY_UNKNOWNS = 1500
 MKL_CBWR_AUTO = 2  # mkl_cbwr_set's mode: reproducible results on this machine's code path
 CNR_THREADS = 2  # PARDISO's threads in CNR mode (iparm 34); MKL runs on at most this many
-# The run's share of the cores (limit_solver_threads; None: the whole machine). Measured with one
-# other run on the 2 cores (solo dancer, view-dependent, 30 frames, experiments.solver_crossover):
-# PARDISO on 2 threads took 17.4 ms per solve of 2,000-3,000 unknowns against 12.0 ms on one, and
-# the run's solves 4.56 s against 2.95 s: its threads wait on a core another run holds.
-_solver_threads: list[int | None] = [None]
+# The factorization's threads: "share", the run's share of the cores (limit_solver_threads; None:
+# the whole machine); "machine", MKL's own count when it loaded (MKL_NUM_THREADS or the cores).
+# Measured with one other run on the 2 cores (solo dancer, view-dependent, 30 frames,
+# experiments.solver_crossover): PARDISO on 2 threads took 17.4 ms per solve of 2,000-3,000 unknowns
+# against 12.0 ms on one, and the run's solves 4.56 s against 2.95 s: its threads wait on a core
+# another run holds.
+_threads: dict[str, int | None] = {"share": None, "machine": None}
 
 
 def limit_solver_threads(threads: int | None) -> int:
@@ -74,11 +76,10 @@ def limit_solver_threads(threads: int | None) -> int:
     it (CNR mode, _pardiso_template)."""
     if threads is not None and int(threads) < 1:
         raise ValueError(f"limit_solver_threads({threads}): at least one thread")
-    _solver_threads[0] = None if threads is None else int(threads)
-    if _pardiso_template.cache_info().currsize:  # MKL already loaded: apply now, else at its load
-        template = _pardiso_template()
-        if template is not None:
-            _set_mkl_threads(template)
+    _threads["share"] = None if threads is None else int(threads)
+    template = _pardiso_template()  # loads MKL if need be
+    if template is not None:
+        _set_mkl_threads(template)
     return solver_threads()
 
 
@@ -89,17 +90,10 @@ def solver_threads() -> int:
 
 
 def _set_mkl_threads(template) -> None:
-    # MKL_Get_Max_Threads answers what was last set: the cap starts from the machine's own count
-    cap = min(CNR_THREADS, max(1, _mkl_machine_threads(template)))
-    if _solver_threads[0] is not None:
-        cap = min(cap, _solver_threads[0])
-    template.libmkl.MKL_Set_Num_Threads(cap)
-
-
-@functools.cache
-def _mkl_machine_threads(template) -> int:
-    """MKL's own thread count before we set one (MKL_NUM_THREADS or the cores)."""
-    return int(template.libmkl.MKL_Get_Max_Threads())
+    if _threads["machine"] is None:  # MKL_Get_Max_Threads answers what was last set: read it first
+        _threads["machine"] = max(1, int(template.libmkl.MKL_Get_Max_Threads()))
+    share = _threads["share"]
+    template.libmkl.MKL_Set_Num_Threads(min(CNR_THREADS, _threads["machine"], share or CNR_THREADS))
 
 
 @functools.cache
