@@ -37,8 +37,9 @@ job exits non-zero at the end. A killed job continues where it stopped when run 
 same arguments and ``--out``: every run is made with ``output.resume=true`` (a run that completed
 or diverged is not run again, one with a checkpoint resumes from it, every ``output.checkpoint_every``
 frames; experiments.resuming.continue_in_place), and each study's measurements and the figures
-are made again from the run folders. At scale=small on 2 cores the whole job took 49-51 minutes from a
-clean clone (at de619a4 and 9855c73; README: Quick start); at scale=paper expect a day or a cluster (docs/studies.md: Scale).
+are made again from the run folders. At scale=small on 2 cores the whole job took 49-51 minutes from
+a clean clone (at de619a4 and 9855c73; README: Quick start); at scale=paper expect a day or a cluster
+(docs/studies.md: Scale).
 """
 
 from __future__ import annotations
