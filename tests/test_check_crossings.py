@@ -89,6 +89,34 @@ def test_a_clean_state_and_its_clearance_to_a_sphere(tmp_path):
     assert row["clearance_m"] == pytest.approx(0.3 - SPHERE_RADIUS, abs=FLOAT32)
 
 
+# A thin capsule (a bone) whose axis runs along z through the cloth triangle's interior at
+# (0.25, 0.25), its three nodes 0.25-0.79 m from the axis, outside its 0.05 m radius.
+BONE_THROUGH = np.array([[[0.25, 0.25, -0.3], [0.25, 0.25, 0.3]]])
+BONE_RADIUS = 0.05
+
+
+def bone(ends, radius=BONE_RADIUS):
+    return CapsuleUnion(np.asarray(ends, float), [radius])
+
+
+@pytest.mark.parametrize(("ends", "pierced"), [
+    (BONE_THROUGH, 1),  # the axis through the face, no node inside: what node contact cannot see
+    (BONE_THROUGH + [0.0, 0.0, 0.4], 0),  # the same axis ending 0.1 m above the face: no axis through it
+    (BONE_THROUGH + [0.6, 0.6, 0.0], 0),  # beside the face (x + y = 1.7 > 1), no node within reach
+    ([[[-0.5, 0.25, 0.02], [1.5, 0.25, 0.02]]], 0),  # along the face, 2 cm above it: over it, not through
+])
+def test_a_capsule_axis_through_a_face_with_every_node_outside_is_counted_apart_from_the_verdict(
+        tmp_path, ends, pierced):
+    save(tmp_path, 1, cloth(CLOTH, [[0, 1, 2]]), [bone(ends)])
+    row = check_run(tmp_path).iloc[0]
+    assert row["faces_pierced"] == pierced
+    assert row["nodes_inside"] == 0  # every node outside the capsule: only the face test sees it
+    from experiments.analysis.check_crossings import record_frames, summarize
+    summary = summarize(check_run(tmp_path), tmp_path, record_frames(tmp_path))
+    assert summary["max_faces_pierced"] == pierced and bool(summary["frames_pierced"]) == bool(pierced)
+    assert summary["clean"]  # reported, not in the verdict
+
+
 def test_frame_0_is_listed_but_the_verdict_is_on_the_frames_after_it(tmp_path, capsys):
     save(tmp_path, 0, cloth(CLOTH, [[0, 1, 2]]), [triangles(THROUGH)])
     save(tmp_path, 5, cloth(CLOTH + [0.0, 0.0, 0.6], [[0, 1, 2]]), [triangles(THROUGH)])
