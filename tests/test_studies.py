@@ -145,6 +145,18 @@ def test_table1_has_the_view_dependent_mode_without_the_contact_floor():
         {k: v for k, v in floor.mode.view.items() if k not in strip}
 
 
+
+@pytest.mark.parametrize(("scene", "floor"), [("solo_dancer", 0.2), ("karate", 0.075)])
+def test_a_scenes_own_contact_floor_holds_in_viewdep_and_is_off_without_the_floor(scene, floor):
+    """karate's scene.view.contact_size wins over the mode's; +point=viewdep_nofloor turns both off
+    (before, a scene's own floor silently overrode the point's null)."""
+    from experiments.build import build_simulation
+
+    built = {point: build_simulation(compose_config(f"scene={scene}", f"+point={point}", "scale=small"))[0]
+             for point in ("viewdep", "viewdep_nofloor")}
+    assert built["viewdep"].remesher.view.contact_size == floor
+    assert built["viewdep_nofloor"].remesher.view.contact_size is None
+
 @pytest.mark.parametrize("experiment", EXPERIMENTS)
 def test_every_point_of_every_preset_validates(experiment):
     from experiments.build import build_simulation, crowd_size
